@@ -1,0 +1,110 @@
+"""Mesh loading, validation, DeepSDF unit-sphere normalization and saving."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from jsrte.errors import JsrteError
+from jsrte.io import write_with
+from jsrte.presets import SdfSampling
+
+MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+
+
+def load_mesh(path: str | Path) -> trimesh.Trimesh:
+    """Read a triangle mesh (OBJ/PLY/OFF/STL/GLB); scenes are flattened into one mesh.
+
+    Raises ``JsrteError`` naming the file when it is missing, unreadable, empty, has
+    non-finite vertices or zero surface area.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise JsrteError("no such file", path)
+    if path.stat().st_size == 0:
+        raise JsrteError("file is empty", path)
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise JsrteError(f"unsupported mesh format {path.suffix!r} (use {', '.join(MESH_SUFFIXES)})", path)
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for broken files
+        raise JsrteError(f"cannot read mesh ({type(exc).__name__}: {exc})", path) from exc
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise JsrteError("holds no triangles", path)
+    return validate_mesh(loaded, path)
+
+
+def validate_mesh(mesh: trimesh.Trimesh, path: str | Path | None = None) -> trimesh.Trimesh:
+    """Check a mesh is usable (finite vertices, faces, non-zero area); returns it."""
+    if len(mesh.faces) == 0:
+        raise JsrteError("mesh holds no triangles", path)
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise JsrteError("mesh has NaN or infinite vertex coordinates", path)
+    if not mesh.area > 0:
+        raise JsrteError("mesh has zero surface area", path)
+    return mesh
+
+
+@dataclass(frozen=True)
+class Normalization:
+    """DeepSDF's unit-sphere normalization: ``canonical = (mesh - centre) / scale``.
+
+    Attributes
+    ----------
+    centre : (3,) float64, the bounding-box centre (mesh units)
+    scale : float, the largest vertex distance from the centre times the padding (mesh units)
+    """
+
+    centre: np.ndarray
+    scale: float
+
+    def to_canonical(self, points: np.ndarray) -> np.ndarray:
+        """Mesh-frame points (n, 3) -> normalized canonical frame (n, 3)."""
+        return (np.asarray(points, dtype=np.float64) - self.centre) / self.scale
+
+    def to_mesh(self, points: np.ndarray) -> np.ndarray:
+        """Canonical points (n, 3) -> mesh frame (n, 3)."""
+        return np.asarray(points, dtype=np.float64) * self.scale + self.centre
+
+
+def unit_sphere_normalization(
+    mesh: trimesh.Trimesh, padding: float = SdfSampling.normalization_padding
+) -> Normalization:
+    """The DeepSDF normalization of ``mesh``: bounding-box centre, max distance × padding."""
+    lo, hi = mesh.bounds
+    centre = (lo + hi) / 2.0
+    radius = float(np.linalg.norm(mesh.vertices - centre, axis=1).max())
+    if radius <= 0:
+        raise JsrteError("mesh is degenerate (all vertices coincide)")
+    return Normalization(centre=centre, scale=radius * padding)
+
+
+def normalized(mesh: trimesh.Trimesh, norm: Normalization | None = None) -> trimesh.Trimesh:
+    """A copy of ``mesh`` in the normalized canonical frame."""
+    norm = norm or unit_sphere_normalization(mesh)
+    return trimesh.Trimesh(norm.to_canonical(mesh.vertices), mesh.faces.copy(), process=False)
+
+
+def save_mesh(mesh: trimesh.Trimesh, path: str | Path) -> None:
+    """Write ``mesh`` atomically; the format follows the suffix."""
+    write_with(path, lambda tmp: mesh.export(tmp))
+
+
+def save_points_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None,
+                    colors: np.ndarray | None = None) -> None:
+    """Write a point cloud (n, 3) with optional normals (n, 3) and uint8 colours (n, 3) as binary PLY."""
+    def write(tmp: Path) -> None:
+        import open3d as o3d
+
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+        if normals is not None:
+            cloud.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
+        if colors is not None:
+            cloud.colors = o3d.utility.Vector3dVector(np.asarray(colors, np.float64) / 255.0)
+        if not o3d.io.write_point_cloud(str(tmp), cloud, write_ascii=False):
+            raise JsrteError("could not write point cloud", path)
+
+    write_with(path, write)

@@ -11,4 +11,12 @@ from jsrte.errors import JsrteError
 
 __version__ = "0.1.0"
 
-__all__ = ["JsrteError", "__version__"]
+
+def fit(*args, **kwargs):  # noqa: ANN002, ANN003, ANN201
+    """``jsrte.fit.fit``: see its docstring (imported lazily to keep ``import jsrte`` light)."""
+    from jsrte.fit import fit as _fit
+
+    return _fit(*args, **kwargs)
+
+
+__all__ = ["JsrteError", "__version__", "fit"]

@@ -1,0 +1,44 @@
+"""JSRTE: joint latent code and similarity transform (the paper's section 3, Algorithm 1)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from jsrte.fit.api import fit_query
+from jsrte.fit.optimize import SdfQuery
+from jsrte.fit.result import FitResult
+from jsrte.model.checkpoint import DeepSdfModel
+
+
+def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
+        up: np.ndarray | None = None, hypotheses: int | None = None, seed: int = 0,
+        progress: bool = False) -> FitResult:
+    """Find the shape and the similarity transform that explain ``query``.
+
+    Parameters
+    ----------
+    query : a scan (PLY/PCD/XYZ, metres, any pose, floor optional with ``up``), a complete
+        mesh (OBJ/OFF/STL/GLB), an SDF-sample ``.npz``, or an ``SdfQuery``
+    model : a shipped model's name, a model file, or a loaded model
+    preset : "fast" (default) or "paper" (jsrte.presets)
+    up : (3,) the rotation axis if known; else the floor normal (scans) or +y (meshes)
+    hypotheses : number of θ starts (default: every 30°, 12)
+    """
+    from jsrte.fit.query import load_query
+    from jsrte.model.registry import resolve_model
+    from jsrte.presets import get_preset
+
+    settings = get_preset(preset)
+    loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)
+    rng = np.random.default_rng(seed)
+    sdf_query = query if isinstance(query, SdfQuery) else load_query(query, rng=rng, up=up,
+                                                                     scan_settings=settings.scan_sdf)
+    result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=hypotheses, seed=seed, progress=progress)
+    result.info.update(preset=settings.name, model=loaded.name, model_sha256=loaded.meta.get("sha256"),
+                       query=sdf_query.info, up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())
+    return result
+
+
+__all__ = ["FitResult", "SdfQuery", "fit", "fit_query"]

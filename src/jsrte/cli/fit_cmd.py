@@ -1,0 +1,111 @@
+"""``jsrte fit``, ``jsrte reconstruct`` and ``jsrte models``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from jsrte.cli import app
+from jsrte.cli.common import set_threads
+from jsrte.errors import JsrteError
+from jsrte.presets import DEFAULT_PRESET, PRESETS
+
+
+def parse_vector(text: str | None, name: str = "--up") -> np.ndarray | None:
+    """'X,Y,Z' -> unit (3,) vector; None stays None."""
+    if text is None:
+        return None
+    try:
+        v = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        raise JsrteError(f"{name} must be three numbers X,Y,Z, got {text!r}") from None
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+        raise JsrteError(f"{name} must be a non-zero vector X,Y,Z, got {text!r}")
+    return v / np.linalg.norm(v)
+
+
+def check_preset(preset: str) -> str:
+    if preset not in PRESETS:
+        raise JsrteError(f"unknown preset {preset!r}; known: {', '.join(PRESETS)}")
+    return preset
+
+
+@app.command("fit")
+def fit_command(
+    scan: Path = typer.Argument(..., help="Scan (PLY/PCD/XYZ, metres), complete mesh (OBJ/OFF/STL/GLB) "
+                                          "or SDF samples (.npz)."),
+    out: Path = typer.Option(..., "--out", help="Output folder (fit.json, shape.ply, overlay.png)."),
+    model: str = typer.Option("chair", help="Shipped model name or model file."),
+    up: str = typer.Option(None, help="Known up axis X,Y,Z (default: the floor normal; +y for meshes)."),
+    preset: str = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)}."),
+    hypotheses: int = typer.Option(None, help="Number of θ starts (default: every 30°, 12)."),
+    seed: int = typer.Option(0, help="Random seed."),
+    device: str = typer.Option("cpu", help="Torch device (cpu; cuda where available)."),
+    threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
+    overwrite: bool = typer.Option(False, help="Replace results already in --out."),
+    progress: bool = typer.Option(True, help="Show a progress bar."),
+) -> None:
+    """Fit the model to a scan: latent code + similarity transform (the paper's JSRTE)."""
+    from jsrte.fit import fit
+    from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs
+    from jsrte.io import output_dir
+
+    check_preset(preset)
+    if device != "cpu":
+        raise JsrteError(f"device {device!r} is not supported by this build yet; use --device cpu")
+    if not scan.exists():
+        raise JsrteError("no such file", scan)
+    if (out / RESULT_NAME).exists() and not overwrite:
+        raise JsrteError(f"already holds a result ({RESULT_NAME}); pass --overwrite to replace it", out)
+    set_threads(threads)
+    result = fit(scan, model=model, preset=preset, up=parse_vector(up), hypotheses=hypotheses, seed=seed,
+                 progress=progress)
+    with output_dir(out, overwrite=overwrite, marker=RESULT_NAME) as folder:
+        query_points = _surface_points(scan, result)
+        write_fit_outputs(result, folder, query_points=query_points, up=result.info.get("up"),
+                          extra={"input": str(scan)})
+    _report(result, out)
+
+
+def _surface_points(scan: Path, result) -> np.ndarray:  # noqa: ANN001
+    """The query's points for the overlay figure."""
+    from jsrte.scans.io import load_scan
+
+    if scan.suffix.lower() == ".npz":
+        from jsrte.sdf.mesh_sdf import SdfSamples
+
+        s = SdfSamples.load(scan)
+        near = np.abs(s.sdf) < 0.01
+        return s.points[near] * s.scale + s.centre
+    return load_scan(scan).points
+
+
+def _report(result, out: Path) -> None:  # noqa: ANN001
+    t = result.transform
+    typer.echo(f"scale {t.s:.4f}  yaw θ {np.degrees(result.angles['theta']) % 360:.1f}°  "
+               f"translation {np.round(t.t, 3).tolist()}")
+    typer.echo(f"winner by {result.criterion['name']}: {result.criterion['value']:.4f}; "
+               f"time {result.timing['total']:.1f} s")
+    typer.echo(f"wrote {out}/fit.json, shape.ply, shape_canonical.ply, overlay.png")
+
+
+@app.command("models")
+def models_command(as_json: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+    """List the shipped models."""
+    from jsrte.model.registry import describe_models
+
+    rows = describe_models()
+    if as_json:
+        typer.echo(json.dumps(rows, indent=2))
+        return
+    if not rows:
+        typer.echo("no shipped models")
+    for r in rows:
+        f = r["metrics"].get("train_fscore_mean")
+        h = r["metrics"].get("heldout_fscore_mean")
+        typer.echo(f"{r['name']:8s} {r['category'] or '?':6s} {r['shapes']} shapes, latent {r['latent_size']}, "
+                   f"{r['size_kb']} KB, F@5% train {f if f is not None else '-'} held-out "
+                   f"{h if h is not None else '-'}")

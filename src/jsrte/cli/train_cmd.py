@@ -1,0 +1,69 @@
+"""``jsrte train``: learn a DeepSDF auto-decoder on one class of shapes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from jsrte.cli import app
+from jsrte.cli.common import set_threads
+from jsrte.errors import JsrteError
+from jsrte.model.decoder import ARCHITECTURES
+from jsrte.model.train import MODEL_NAME, STATE_NAME, Trainer, TrainSettings
+from jsrte.presets import SdfSampling
+
+_DEFAULT = TrainSettings()
+
+
+@app.command("train")
+def train(
+    out: Path = typer.Option(..., "--out", help="Run folder: checkpoints, log, model.safetensors."),
+    category: str = typer.Option("chair", help="Shape class (procedural data, or the ShapeNet synset with --data)."),
+    shapes: int = typer.Option(100, "--shapes", help="Number of procedural training shapes."),
+    data: Path = typer.Option(None, "--data", help="Train on this folder of meshes / ShapeNet root instead."),
+    arch: str = typer.Option("cpu", help=f"Decoder architecture: {', '.join(ARCHITECTURES)}."),
+    steps: int = typer.Option(_DEFAULT.steps, help="Optimizer steps."),
+    batch_shapes: int = typer.Option(_DEFAULT.shapes_per_batch, help="Shapes per step."),
+    points: int = typer.Option(_DEFAULT.points_per_shape, help="SDF samples per shape per step."),
+    samples: int = typer.Option(SdfSampling.n_points, help="SDF samples drawn per training shape."),
+    lr_net: float = typer.Option(_DEFAULT.lr_net, help="Decoder learning rate."),
+    lr_codes: float = typer.Option(_DEFAULT.lr_codes, help="Latent-code learning rate."),
+    checkpoint_every: int = typer.Option(_DEFAULT.checkpoint_every, help="Steps between checkpoints."),
+    seed: int = typer.Option(0, help="Training seed."),
+    name: str = typer.Option(None, help="Model name stored in the file (default: the category)."),
+    resume: bool = typer.Option(False, help="Continue the run in --out after an interruption."),
+    threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
+    progress: bool = typer.Option(True, help="Show a progress bar."),
+) -> None:
+    """Train decoder weights and per-shape latent codes (clamped L1, code regularization)."""
+    if arch not in ARCHITECTURES:
+        raise JsrteError(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")
+    state = out / STATE_NAME
+    if state.exists() and not resume:
+        raise JsrteError("already holds a training run; pass --resume to continue it", out)
+    if resume and not state.exists():
+        raise JsrteError(f"nothing to resume ({STATE_NAME} missing)", out)
+    set_threads(threads)
+    settings = TrainSettings(steps=steps, shapes_per_batch=batch_shapes, points_per_shape=points,
+                             lr_net=lr_net, lr_codes=lr_codes, checkpoint_every=checkpoint_every,
+                             seed=seed)
+    sampling = SdfSampling(n_points=samples)
+    training_data = _load_data(out, category, shapes, data, sampling)
+    meta = {"name": name or category, "category": category, "arch": arch}
+    trainer = Trainer(ARCHITECTURES[arch], settings, training_data, out, meta)
+    if resume:
+        trainer.load_checkpoint()
+        typer.echo(f"resuming at step {trainer.step} of {settings.steps}")
+    trainer.run(progress=progress)
+    typer.echo(f"wrote {out / MODEL_NAME} ({training_data.n_shapes} shapes, {trainer.step} steps, "
+               f"{trainer.elapsed / 60:.1f} min)")
+
+
+def _load_data(out: Path, category: str, shapes: int, data: Path | None, sampling: SdfSampling):  # noqa: ANN202
+    from jsrte.model.data import folder_training_data, procedural_training_data
+
+    if data is not None:
+        return folder_training_data(data, out / "data", category=category, settings=sampling)
+    return procedural_training_data(category, shapes, out / "data", settings=sampling)
+

@@ -1,0 +1,98 @@
+"""``fit``: the JSRTE algorithm (paper Algorithm 1) on an SDF query."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from jsrte.fit.init import ClassGeometry, initial_hypotheses
+from jsrte.fit.optimize import Optimized, SdfQuery, optimize
+from jsrte.fit.params import Init
+from jsrte.fit.result import FitResult, HypothesisReport
+from jsrte.metrics.surface import bounding_sphere, fscore
+from jsrte.model.checkpoint import DeepSdfModel
+from jsrte.model.decode import decode_mesh
+from jsrte.presets import FitSettings
+
+
+def class_geometry(model: DeepSdfModel) -> ClassGeometry:
+    """Canonical height and radius of the class: from the model metadata, else by decoding
+    the mean training code (cached in ``model.meta``)."""
+    meta = model.meta
+    if "canonical_height" not in meta or "canonical_radius" not in meta:
+        mesh = decode_mesh(model.decoder, model.mean_code(), resolution=64).mesh
+        if mesh is None:
+            meta["canonical_height"], meta["canonical_radius"] = 1.0, 1.0
+        else:
+            meta["canonical_height"] = float(mesh.bounds[1, 1] - mesh.bounds[0, 1])
+            meta["canonical_radius"] = bounding_sphere(mesh.vertices)[1]
+    return ClassGeometry(height=float(meta["canonical_height"]), radius=float(meta["canonical_radius"]))
+
+
+def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
+              inits: list[Init] | None = None, n_hypotheses: int | None = None,
+              fixed: frozenset[str] = frozenset(), seed: int = 0, progress: bool = False) -> FitResult:
+    """Jointly estimate z and (s, R, t) for ``query``; returns the winning hypothesis.
+
+    ``inits`` default to :func:`initial_hypotheses` (the θ grid). The winner is chosen by
+    ``settings.selection``: F@5% of each surviving hypothesis's decoded surface against the
+    query's surface points (the paper), or the final loss.
+    """
+    started = time.perf_counter()
+    decoder = model.decoder
+    generator = torch.Generator().manual_seed(seed)
+    if inits is None:
+        inits = initial_hypotheses(query, class_geometry(model), settings, n_hypotheses=n_hypotheses)
+    result = optimize(decoder, query, inits, settings, fixed=fixed, generator=generator, progress=progress)
+    t_opt = time.perf_counter() - started
+    reports = _reports(result, inits)
+    winner, criterion = _select(model, query, result, reports, settings, seed)
+    t_sel = time.perf_counter() - started - t_opt
+    latent = result.batch.latent[winner].detach().to(torch.float32).numpy()
+    mesh = decode_mesh(decoder, latent, resolution=settings.extract_resolution).mesh
+    timing = {"optimize": round(t_opt, 2), "select": round(t_sel, 2),
+              "extract": round(time.perf_counter() - started - t_opt - t_sel, 2),
+              "total": round(time.perf_counter() - started, 2)}
+    return FitResult(
+        method="jsrte", transform=result.batch.transform(winner), latent=latent, mesh_canonical=mesh,
+        loss=float(result.losses[winner]), criterion=criterion, angles=result.batch.angles(winner),
+        hypotheses=reports, timing=timing,
+        info={"decoder_evaluations": result.evaluations, "iterations": result.iterations,
+              "winner_hypothesis": int(result.survivors[winner])},
+    )
+
+
+def _reports(result: Optimized, inits: list[Init]) -> list[HypothesisReport]:
+    reports = []
+    for i, init in enumerate(inits):
+        init_json = {"scale": init.scale, "psi": init.psi, "rho": init.rho, "theta": init.theta,
+                     "translation": np.asarray(init.translation, float).tolist()}
+        if i in result.pruned_losses:
+            reports.append(HypothesisReport(i, init_json, result.pruned_losses[i], pruned=True))
+            continue
+        h = int(np.nonzero(result.survivors == i)[0][0])
+        reports.append(HypothesisReport(i, init_json, float(result.losses[h]),
+                                        transform=result.batch.transform(h), angles=result.batch.angles(h)))
+    return reports
+
+
+def _select(model: DeepSdfModel, query: SdfQuery, result: Optimized, reports: list[HypothesisReport],
+            settings: FitSettings, seed: int) -> tuple[int, dict]:
+    """Index (into the surviving batch) of the winner, and the criterion used."""
+    by_loss = int(np.argmin(result.losses))
+    if settings.selection == "loss" or len(result.losses) == 1:
+        return by_loss, {"name": "loss", "value": float(result.losses[by_loss])}
+    scores = []
+    for h in range(len(result.losses)):
+        latent = result.batch.latent[h].detach().to(torch.float32)
+        mesh = decode_mesh(model.decoder, latent, resolution=settings.selection_resolution).mesh
+        if mesh is not None:
+            mesh.vertices = result.batch.transform(h).apply(mesh.vertices)
+        f = fscore(mesh, query.surface, fraction=settings.fscore_fraction, n_points=settings.fscore_points,
+                   rng=np.random.default_rng(seed)).fscore
+        scores.append(f)
+        reports[int(result.survivors[h])].fscore = f
+    best = int(np.argmax(scores))
+    return best, {"name": "fscore", "value": float(scores[best]), "agrees_with_loss": best == by_loss}

@@ -1,0 +1,138 @@
+"""The JSRTE optimization (paper eq. 6): min over s, ψ, ρ, θ, t, z of
+Σ |s·f(R⁻¹(x − t)/s, z) − φ| + λ‖z‖², for H hypotheses at once, by Adam.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from jsrte.fit.params import HypothesisBatch, Init
+from jsrte.model.decoder import Decoder
+from jsrte.presets import FitSettings
+
+
+@dataclass
+class SdfQuery:
+    """SDF samples of a query in scan units.
+
+    Attributes
+    ----------
+    points : (m, 3) float64, scan units (metres for scans)
+    sdf : (m,) float64, scan units, negative inside
+    surface : (k, 3) float64, points on the query surface (scan units): for F-scores and figures
+    up : (3,) unit vector or None: the known rotation axis (floor normal)
+    floor_offset : float or None: the floor plane is {x : up·x = floor_offset}
+    """
+
+    points: np.ndarray
+    sdf: np.ndarray
+    surface: np.ndarray
+    up: np.ndarray | None = None
+    floor_offset: float | None = None
+    info: dict = field(default_factory=dict)
+
+
+@dataclass
+class Optimized:
+    """The optimized batch and what happened on the way."""
+
+    batch: HypothesisBatch
+    losses: np.ndarray
+    """(H,) final losses of the surviving hypotheses on a fixed evaluation subset."""
+    survivors: np.ndarray
+    """(H,) index of each surviving hypothesis among the initial ones."""
+    pruned_losses: dict[int, float]
+    """Loss of each pruned hypothesis (by initial index) when it was pruned."""
+    iterations: int
+    evaluations: int
+    seconds: float
+
+
+def learning_rate(settings: FitSettings, iteration: int) -> float:
+    """The paper's schedule: lr divided by ``lr_decay_factor`` every ``lr_decay_every`` iterations."""
+    return settings.lr / settings.lr_decay_factor ** (iteration // settings.lr_decay_every)
+
+
+def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
+                      *, clamp: float | None, latent_penalty: float) -> torch.Tensor:
+    """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖z‖².
+
+    ``points`` (K, 3) and ``sdf`` (K,) in scan units, shared by all hypotheses.
+    """
+    h, k = len(batch), points.shape[0]
+    canonical = batch.to_canonical(points).to(torch.float32)  # (H, K, 3)
+    codes = batch.latent.to(torch.float32)[:, None, :].expand(h, k, -1)
+    pred = decoder(canonical.reshape(-1, 3), codes.reshape(h * k, -1)).reshape(h, k)
+    pred = batch.scale.to(torch.float32)[:, None] * pred
+    target = sdf.to(torch.float32)[None, :]
+    if clamp is not None:
+        pred, target = pred.clamp(-clamp, clamp), target.clamp(-clamp, clamp)
+    data_term = (pred - target).abs().mean(dim=1)
+    return data_term + latent_penalty * batch.latent.to(torch.float32).pow(2).sum(dim=1)
+
+
+def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
+             fixed: frozenset[str] = frozenset(), generator: torch.Generator,
+             progress: bool = False) -> Optimized:
+    """Run Adam on all hypotheses as one batch; prune to ``prune_keep`` after ``prune_after``."""
+    start = time.perf_counter()
+    decoder.eval()
+    decoder.requires_grad_(False)
+    batch = HypothesisBatch(inits, decoder.config.latent_size, latent_init_std=settings.latent_init_std,
+                            fixed=fixed, generator=generator)
+    clamp = None if settings.clamp_canonical is None else settings.clamp_canonical * float(
+        np.median([i.scale for i in inits]))
+    points = torch.as_tensor(query.points, dtype=torch.float64)
+    sdf = torch.as_tensor(query.sdf, dtype=torch.float64)
+    survivors = np.arange(len(inits))
+    pruned: dict[int, float] = {}
+    optimizer = _adam(batch, settings.lr)
+    recent = torch.zeros(len(inits), dtype=torch.float64)
+    evaluations = 0
+    for it in tqdm(range(settings.iterations), desc="fitting", disable=not progress):
+        if settings.prune_after is not None and it == settings.prune_after and len(batch) > settings.prune_keep:
+            keep = torch.argsort(recent)[: settings.prune_keep]
+            for i in range(len(batch)):
+                if i not in keep.tolist():
+                    pruned[int(survivors[i])] = float(recent[i])
+            batch.keep(keep)
+            survivors = survivors[keep.numpy()]
+            recent = recent[keep]
+            optimizer = _adam(batch, learning_rate(settings, it))
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(settings, it)
+        idx = torch.randint(len(sdf), (min(settings.samples_per_iteration, len(sdf)),), generator=generator)
+        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp,
+                                   latent_penalty=settings.latent_penalty)
+        optimizer.zero_grad(set_to_none=True)
+        losses.sum().backward()
+        optimizer.step()
+        batch.clamp_scale(settings.scale_min, settings.scale_max)
+        recent = 0.8 * recent + 0.2 * losses.detach().double() if it else losses.detach().double()
+        evaluations += len(batch) * len(idx)
+    final = _final_losses(decoder, batch, points, sdf, settings, clamp, generator)
+    evaluations += len(batch) * min(settings.eval_samples, len(sdf))
+    return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
+                     time.perf_counter() - start)
+
+
+def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:
+    params = [p for p in batch.parameters() if p.requires_grad]
+    if not params:
+        raise ValueError("every parameter is fixed: nothing to optimize")
+    return torch.optim.Adam(params, lr=lr)
+
+
+def _final_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
+                  settings: FitSettings, clamp: float | None, generator: torch.Generator) -> np.ndarray:
+    n = min(settings.eval_samples, len(sdf))
+    idx = torch.randperm(len(sdf), generator=generator)[:n]
+    with torch.no_grad():
+        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp,
+                                   latent_penalty=settings.latent_penalty)
+    return losses.double().numpy()

@@ -1,0 +1,102 @@
+"""The free parameters of H hypotheses, optimized as one batch.
+
+Each hypothesis h has a scale s_h, the paper's rotation angles (ψ_h, ρ_h, θ_h), a translation
+t_h (3,) and a latent code z_h (d,). Its rotation is ``R_h = R(ψ_h, ρ_h, θ_h) @ B_h`` with a
+fixed base rotation B_h (identity in the paper's synthetic setting; for floor scans, the
+rotation taking canonical +y to the floor normal, so θ turns the object about its up axis).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from jsrte.geometry.sim3 import Sim3, rotation_from_paper
+
+PARAMETER_NAMES = ("scale", "psi", "rho", "theta", "translation", "latent")
+
+
+@dataclass(frozen=True)
+class Init:
+    """One starting point (scan units: metres, radians).
+
+    Attributes
+    ----------
+    scale : s0 > 0
+    psi, rho, theta : the paper's axis angles (polar, azimuth) and rotation angle
+    translation : (3,)
+    latent : (d,) or None (then drawn from N(0, std^2) by the optimizer)
+    base_rotation : (3, 3) or None (identity)
+    """
+
+    scale: float
+    psi: float
+    rho: float
+    theta: float
+    translation: np.ndarray
+    latent: np.ndarray | None = None
+    base_rotation: np.ndarray | None = None
+
+
+class HypothesisBatch(torch.nn.Module):
+    """Parameters (H, ...) of H hypotheses; ``fixed`` names are not optimized."""
+
+    def __init__(self, inits: list[Init], latent_size: int, *, latent_init_std: float,
+                 fixed: frozenset[str] = frozenset(), generator: torch.Generator | None = None) -> None:
+        super().__init__()
+        unknown = set(fixed) - set(PARAMETER_NAMES)
+        if unknown:
+            raise ValueError(f"unknown parameter names {sorted(unknown)}; known: {PARAMETER_NAMES}")
+        f64 = torch.float64
+
+        def param(name: str, values: list) -> torch.nn.Parameter:
+            return torch.nn.Parameter(torch.tensor(np.array(values), dtype=f64),
+                                      requires_grad=name not in fixed)
+
+        self.scale = param("scale", [i.scale for i in inits])
+        self.psi = param("psi", [i.psi for i in inits])
+        self.rho = param("rho", [i.rho for i in inits])
+        self.theta = param("theta", [i.theta for i in inits])
+        self.translation = param("translation", [np.asarray(i.translation, float) for i in inits])
+        z = torch.randn(len(inits), latent_size, generator=generator, dtype=f64) * latent_init_std
+        for h, init in enumerate(inits):
+            if init.latent is not None:
+                z[h] = torch.as_tensor(init.latent, dtype=f64)
+        self.latent = torch.nn.Parameter(z, requires_grad="latent" not in fixed)
+        base = [np.eye(3) if i.base_rotation is None else np.asarray(i.base_rotation, float) for i in inits]
+        self.register_buffer("base_rotation", torch.tensor(np.array(base), dtype=f64))
+
+    def __len__(self) -> int:
+        return int(self.scale.shape[0])
+
+    def rotation(self) -> torch.Tensor:
+        """R (H, 3, 3) = R(ψ, ρ, θ) @ base."""
+        return rotation_from_paper(self.psi, self.rho, self.theta) @ self.base_rotation
+
+    def to_canonical(self, points: torch.Tensor) -> torch.Tensor:
+        """Scan points (H, K, 3) or (K, 3) -> canonical R^T (x - t) / s, (H, K, 3)."""
+        centred = points - self.translation[:, None, :]
+        return centred @ self.rotation() / self.scale[:, None, None]
+
+    def clamp_scale(self, lo: float, hi: float) -> None:
+        """Project s back into [lo, hi] (the paper keeps s in [0.01, 10])."""
+        with torch.no_grad():
+            self.scale.clamp_(lo, hi)
+
+    def keep(self, index: torch.Tensor) -> None:
+        """Keep only hypotheses ``index`` (pruning); optimizer state must be rebuilt after."""
+        for name in ("scale", "psi", "rho", "theta", "translation", "latent"):
+            old = getattr(self, name)
+            setattr(self, name, torch.nn.Parameter(old.detach()[index].clone(), requires_grad=old.requires_grad))
+        self.base_rotation = self.base_rotation[index]
+
+    def transform(self, h: int) -> Sim3:
+        """``scan_from_canonical`` of hypothesis ``h``."""
+        with torch.no_grad():
+            return Sim3(float(self.scale[h]), self.rotation()[h].numpy(), self.translation[h].numpy())
+
+    def angles(self, h: int) -> dict[str, float]:
+        with torch.no_grad():
+            return {"psi": float(self.psi[h]), "rho": float(self.rho[h]), "theta": float(self.theta[h])}

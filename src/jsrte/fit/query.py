@@ -1,0 +1,79 @@
+"""Build the SDF query of the fit from what the user has: samples, a mesh, or a scan."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from jsrte.errors import JsrteError
+from jsrte.fit.optimize import SdfQuery
+from jsrte.geometry.mesh import load_mesh
+from jsrte.presets import ScanSdf, SdfSampling
+from jsrte.sdf.mesh_sdf import SdfSamples, sample_sdf
+
+SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".pts")
+MESH_QUERY_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
+SURFACE_POINTS = 20_000
+
+
+def query_from_samples(samples: SdfSamples, *, up: np.ndarray | None = None) -> SdfQuery:
+    """An SDF-sample file (``jsrte sample``) as a query in the mesh's own frame."""
+    points = samples.points.astype(np.float64) * samples.scale + samples.centre
+    sdf = samples.sdf.astype(np.float64) * samples.scale
+    near = np.abs(samples.sdf) < 0.01
+    if near.sum() < 100:
+        raise JsrteError("the SDF samples have too few points near the surface")
+    surface = points[near][:SURFACE_POINTS]
+    return SdfQuery(points, sdf, surface, up=up, info={"input": "sdf-samples", "samples": len(sdf)})
+
+
+def query_from_mesh(mesh: trimesh.Trimesh, *, rng: np.random.Generator, up: np.ndarray | None = None,
+                    settings: SdfSampling = SdfSampling()) -> SdfQuery:
+    """A complete mesh in any pose: DeepSDF-style samples of its SDF, in its own frame."""
+    query = query_from_samples(sample_sdf(mesh, rng=rng, settings=settings), up=up)
+    query.surface = np.asarray(mesh.sample(SURFACE_POINTS, seed=int(rng.integers(2**31))))
+    axis = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, float)
+    query.floor_offset = float((mesh.vertices @ axis).min() / np.linalg.norm(axis))
+    query.info["input"] = "mesh"
+    return query
+
+
+def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
+                    settings: ScanSdf = ScanSdf()) -> SdfQuery:
+    """A scan (point cloud or scan mesh, metres, floor optional when ``up`` is given): the
+    paper's preprocessing, then SDF samples ±δ along the normals plus freespace samples."""
+    from jsrte.scans.io import load_scan, read_scan_info
+    from jsrte.scans.preprocess import prepare_scan
+    from jsrte.sdf.from_scan import scan_sdf_samples
+
+    cloud = load_scan(path, rng=rng)
+    info = read_scan_info(path) if Path(path).suffix.lower() == ".ply" else None
+    viewpoints = info.cameras if info is not None and len(info.cameras) else None
+    prepared = prepare_scan(cloud, rng=rng, up=up, viewpoints=viewpoints)
+    points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
+    floor_offset = prepared.floor.offset if prepared.floor is not None else None
+    return SdfQuery(points.astype(np.float64), sdf.astype(np.float64), prepared.points, up=prepared.up,
+                    floor_offset=floor_offset,
+                    info={"input": "scan", "scan_points": len(cloud.points),
+                          "object_points": len(prepared.points), "samples": len(sdf),
+                          "floor_found": prepared.floor is not None})
+
+
+def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
+               scan_settings: ScanSdf = ScanSdf()) -> SdfQuery:
+    """Dispatch on the file: ``.npz`` SDF samples; OBJ/OFF/STL/GLB complete meshes (up: ``up``
+    or +y); PLY/PCD/XYZ/PTS scans (point clouds or scan meshes, floor plane gives up)."""
+    path = Path(path)
+    if not path.exists():
+        raise JsrteError("no such file", path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return query_from_samples(SdfSamples.load(path), up=up)
+    if suffix in MESH_QUERY_SUFFIXES:
+        return query_from_mesh(load_mesh(path), rng=rng, up=up)
+    if suffix in SCAN_SUFFIXES:
+        return query_from_scan(path, rng=rng, up=up, settings=scan_settings)
+    known = ", ".join((".npz",) + MESH_QUERY_SUFFIXES + SCAN_SUFFIXES)
+    raise JsrteError(f"unsupported input {path.suffix!r} (use {known})", path)

@@ -1,0 +1,143 @@
+"""Model files: one safetensors file holding decoder weights, latent codes and JSON metadata.
+
+The metadata (architecture, latent size, class, canonical-frame convention, training-data
+summary, metrics, library version) is embedded in the safetensors header under ``jsrte``,
+so weights and description can never disagree; a readable ``.json`` copy is written beside it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+import jsrte
+from jsrte.errors import JsrteError
+from jsrte.io import write_json_atomic, write_with
+from jsrte.model.decoder import Decoder, DecoderConfig
+
+FORMAT = "jsrte-model"
+FORMAT_VERSION = 1
+CONVENTION = "ShapeNetCore v2 canonical frame (+y up, front -z), DeepSDF unit-sphere normalization, SDF negative inside"
+CODES_KEY = "latent_codes"
+
+
+@dataclass
+class DeepSdfModel:
+    """A trained auto-decoder: the decoder, the training shapes' codes, and what it is.
+
+    Attributes
+    ----------
+    decoder : Decoder
+    codes : (n_shapes, d) float32, latent codes of the training shapes
+    meta : dict, JSON-serializable description (see module docstring)
+    """
+
+    decoder: Decoder
+    codes: torch.Tensor
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return str(self.meta.get("name", "unnamed"))
+
+    @property
+    def latent_size(self) -> int:
+        return self.decoder.config.latent_size
+
+    def mean_code(self) -> torch.Tensor:
+        """The mean of the training codes (d,)."""
+        return self.codes.mean(0)
+
+
+def tensors_of(model: DeepSdfModel) -> dict[str, torch.Tensor]:
+    tensors = {f"decoder.{k}": v.detach().contiguous() for k, v in model.decoder.state_dict().items()}
+    tensors[CODES_KEY] = model.codes.detach().contiguous()
+    return tensors
+
+
+def model_metadata(model: DeepSdfModel) -> dict[str, Any]:
+    meta = dict(model.meta)
+    meta.update(
+        format=FORMAT,
+        format_version=FORMAT_VERSION,
+        architecture=model.decoder.config.to_dict(),
+        n_shapes=int(model.codes.shape[0]),
+        convention=CONVENTION,
+        jsrte_version=jsrte.__version__,
+    )
+    return meta
+
+
+def save_model(model: DeepSdfModel, path: str | Path) -> None:
+    """Write ``path`` (.safetensors) and ``path.json`` atomically."""
+    path = Path(path)
+    meta = model_metadata(model)
+    write_with(path, lambda tmp: save_file(tensors_of(model), str(tmp), metadata={"jsrte": json.dumps(meta)}))
+    meta["sha256"] = file_hash(path)
+    write_json_atomic(path.with_suffix(".json"), meta)
+
+
+def file_hash(path: str | Path) -> str:
+    """SHA-256 (hex) of a file's bytes: the model's identity in codes and results."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def read_metadata(path: str | Path) -> dict[str, Any]:
+    """The JSON metadata embedded in a model or training-state file."""
+    from safetensors import safe_open
+
+    path = Path(path)
+    if not path.is_file():
+        raise JsrteError("no such model file", path)
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            raw = (f.metadata() or {}).get("jsrte")
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise JsrteError(f"corrupt or not a safetensors model file ({exc})", path) from exc
+    if raw is None:
+        raise JsrteError("is a safetensors file but not a jsrte model (no 'jsrte' metadata)", path)
+    try:
+        return json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise JsrteError(f"model metadata is not valid JSON ({exc})", path) from exc
+
+
+def load_model(path: str | Path, *, expect: DecoderConfig | None = None) -> DeepSdfModel:
+    """Load a model file; clear errors for a corrupt file, missing keys or a wrong architecture."""
+    path = Path(path)
+    meta = read_metadata(path)
+    if meta.get("format") not in (FORMAT, "jsrte-train-state"):
+        raise JsrteError(f"unexpected format {meta.get('format')!r}", path)
+    try:
+        config = DecoderConfig.from_dict(meta["architecture"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise JsrteError(f"bad architecture in metadata ({exc})", path) from exc
+    if expect is not None and config != expect:
+        raise JsrteError(f"architecture {config} does not match the expected {expect}", path)
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError) as exc:
+        raise JsrteError(f"corrupt model file ({exc})", path) from exc
+    decoder = Decoder(config)
+    state = {k.removeprefix("decoder."): v for k, v in tensors.items() if k.startswith("decoder.")}
+    try:
+        decoder.load_state_dict(state, strict=True)
+    except RuntimeError as exc:
+        first = str(exc).splitlines()[0]
+        raise JsrteError(f"weights do not match the architecture ({first})", path) from exc
+    if CODES_KEY not in tensors:
+        raise JsrteError(f"missing tensor {CODES_KEY!r}", path)
+    codes = tensors[CODES_KEY]
+    if codes.ndim != 2 or codes.shape[1] != config.latent_size:
+        raise JsrteError(f"latent codes {tuple(codes.shape)} do not match latent size {config.latent_size}", path)
+    meta.setdefault("sha256", file_hash(path))
+    meta["path"] = str(path)
+    decoder.eval()
+    return DeepSdfModel(decoder=decoder, codes=codes, meta=meta)

@@ -1,0 +1,43 @@
+"""From a latent code to a mesh: the decoder as an SDF function, and marching cubes."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import trimesh
+
+from jsrte.extract.marching import Extraction, extract_coarse_to_fine, extract_dense
+from jsrte.model.decoder import Decoder
+
+
+def sdf_function(decoder: Decoder, latent: torch.Tensor | np.ndarray):  # noqa: ANN201
+    """A function points (n, 3) float32 canonical -> sdf (n,) for one latent code (d,)."""
+    z = torch.as_tensor(np.asarray(latent), dtype=torch.float32)
+
+    def evaluate(points: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            return decoder(points.to(torch.float32), z)
+
+    return evaluate
+
+
+def decode_mesh(decoder: Decoder, latent: torch.Tensor | np.ndarray, *, resolution: int = 128,
+                coarse_to_fine: bool = True) -> Extraction:
+    """Marching cubes of f(·, z) = 0 over [-1, 1]^3; mesh in canonical units (or None)."""
+    was_training = decoder.training
+    decoder.eval()
+    try:
+        fn = sdf_function(decoder, latent)
+        if coarse_to_fine:
+            return extract_coarse_to_fine(fn, resolution=resolution, coarse_resolution=min(32, resolution))
+        return extract_dense(fn, resolution=resolution)
+    finally:
+        decoder.train(was_training)
+
+
+def canonical_height(decoder: Decoder, latent: torch.Tensor | np.ndarray, *, resolution: int = 48) -> float:
+    """Height (canonical units, along +y) of the surface decoded from ``latent``; 0 if empty."""
+    mesh: trimesh.Trimesh | None = decode_mesh(decoder, latent, resolution=resolution).mesh
+    if mesh is None:
+        return 0.0
+    return float(mesh.bounds[1, 1] - mesh.bounds[0, 1])

@@ -1,0 +1,120 @@
+"""The DeepSDF decoder f(x, z): an MLP on [z, x] with the input re-injected at a middle layer.
+
+Architecture as DeepSDF (Park et al. 2019): weight-normalized linear layers, ReLU, dropout in
+training, the latent code and point concatenated again at ``skip_layer``, tanh output.
+Optional Fourier features of x (``pe_frequencies``) help thin parts at a small cost.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+from torch.nn.utils.parametrizations import weight_norm
+
+
+@dataclass(frozen=True)
+class DecoderConfig:
+    """Decoder architecture (stored in every checkpoint).
+
+    Attributes
+    ----------
+    latent_size : dimension d of the latent code z
+    hidden : width of every hidden layer
+    depth : number of hidden layers
+    skip_layer : index of the hidden layer whose input is concatenated with [z, x] again
+    dropout : dropout probability in training (0 disables)
+    weight_norm : weight-normalize the linear layers
+    pe_frequencies : number of Fourier-feature octaves of x (0: raw xyz only)
+    """
+
+    latent_size: int = 64
+    hidden: int = 256
+    depth: int = 6
+    skip_layer: int = 3
+    dropout: float = 0.0
+    weight_norm: bool = True
+    pe_frequencies: int = 0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> DecoderConfig:
+        known = set(DecoderConfig.__dataclass_fields__)
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown decoder config keys: {sorted(unknown)}")
+        return DecoderConfig(**d)
+
+
+ARCHITECTURES: dict[str, DecoderConfig] = {
+    # The paper's network (DeepSDF): 8 x 512, latent 256, skip at layer 4, dropout 0.2.
+    "deepsdf": DecoderConfig(latent_size=256, hidden=512, depth=8, skip_layer=4, dropout=0.2),
+    # CPU default, chosen by measurement on the 2-core machine (docs/models.md).
+    "cpu": DecoderConfig(latent_size=64, hidden=256, depth=6, skip_layer=3, dropout=0.0,
+                         pe_frequencies=0),
+}
+
+
+class Decoder(nn.Module):
+    """f(x, z) -> sdf. Input points (n, 3) canonical units, codes (n, d); output (n,)."""
+
+    def __init__(self, config: DecoderConfig) -> None:
+        super().__init__()
+        self.config = config
+        point_dim = 3 * (1 + 2 * config.pe_frequencies)
+        self.input_dim = config.latent_size + point_dim
+        widths = [config.hidden] * config.depth
+        if 0 < config.skip_layer < config.depth and config.hidden > self.input_dim:
+            widths[config.skip_layer - 1] = config.hidden - self.input_dim  # DeepSDF's layout
+        layers = []
+        for i in range(config.depth):
+            in_dim = self.input_dim if i == 0 else widths[i - 1]
+            if i == config.skip_layer:
+                in_dim += self.input_dim
+            layers.append(self._linear(in_dim, widths[i]))
+        self.layers = nn.ModuleList(layers)
+        self.head = nn.Linear(config.hidden, 1)
+        self.dropout = nn.Dropout(config.dropout) if config.dropout > 0 else nn.Identity()
+        if config.pe_frequencies:
+            freqs = (2.0 ** torch.arange(config.pe_frequencies)) * math.pi
+            self.register_buffer("frequencies", freqs, persistent=False)
+
+    def _linear(self, in_dim: int, out_dim: int) -> nn.Module:
+        layer = nn.Linear(in_dim, out_dim)
+        return weight_norm(layer) if self.config.weight_norm else layer
+
+    def fold_weight_norm(self) -> Decoder:
+        """Fold weight normalization into plain weights (faster inference); returns self."""
+        from torch.nn.utils import parametrize
+
+        for layer in self.layers:
+            if parametrize.is_parametrized(layer):
+                parametrize.remove_parametrizations(layer, "weight")
+        return self
+
+    def encode_points(self, points: torch.Tensor) -> torch.Tensor:
+        """Points (n, 3) -> features (n, 3 (1 + 2F)): xyz and its Fourier features."""
+        if not self.config.pe_frequencies:
+            return points
+        angles = points[..., None] * self.frequencies  # (n, 3, F)
+        return torch.cat([points, angles.sin().flatten(-2), angles.cos().flatten(-2)], dim=-1)
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        """SDF (n,) at ``points`` (n, 3) for per-point latent ``codes`` (n, d) or one code (d,)."""
+        if codes.dim() == 1:
+            codes = codes.expand(points.shape[0], -1)
+        inputs = torch.cat([codes, self.encode_points(points)], dim=-1)
+        h = inputs
+        for i, layer in enumerate(self.layers):
+            if i == self.config.skip_layer:
+                h = torch.cat([h, inputs], dim=-1)
+            h = self.dropout(torch.relu(layer(h)))
+        return torch.tanh(self.head(h)).squeeze(-1)
+
+
+def count_parameters(module: nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())

@@ -1,0 +1,255 @@
+"""Auto-decoder training (DeepSDF): decoder weights and one latent code per shape, jointly.
+
+Deterministic and resumable: the batch of step k depends only on (seed, k), and the training
+state (weights, codes, Adam moments, step) is one safetensors file written atomically, so
+``resume`` after a kill continues exactly as an uninterrupted run would.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+from tqdm import tqdm
+
+from jsrte.errors import JsrteError
+from jsrte.io import write_with
+from jsrte.model.checkpoint import DeepSdfModel, read_metadata, save_model, tensors_of
+from jsrte.model.decoder import Decoder, DecoderConfig
+
+STATE_NAME = "train_state.safetensors"
+MODEL_NAME = "model.safetensors"
+LOG_NAME = "train_log.csv"
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """Auto-decoder training settings (stored in the checkpoint).
+
+    ``clamp`` and ``code_reg`` are DeepSDF's (0.1 and 1e-4). Learning rates follow a cosine
+    from their base value to ``final_lr_fraction`` of it over ``steps``.
+    """
+
+    steps: int = 4000
+    shapes_per_batch: int = 16
+    points_per_shape: int = 1024
+    lr_net: float = 1e-3
+    lr_codes: float = 5e-3
+    final_lr_fraction: float = 0.05
+    clamp: float = 0.1
+    code_reg: float = 1e-4
+    code_init_std: float = 0.01
+    checkpoint_every: int = 200
+    seed: int = 0
+
+    def lr_factor(self, step: int) -> float:
+        """Cosine learning-rate factor at ``step`` (1 at step 0, ``final_lr_fraction`` at the end)."""
+        progress = min(step / max(self.steps, 1), 1.0)
+        f = self.final_lr_fraction
+        return f + (1.0 - f) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
+@dataclass
+class TrainingData:
+    """SDF samples of the training shapes, in memory.
+
+    Attributes
+    ----------
+    points : (n_shapes, m, 3) float32, canonical frame
+    sdf : (n_shapes, m) float32
+    summary : dict, what the data is (class, source, seeds, count), stored in the model
+    """
+
+    points: torch.Tensor
+    sdf: torch.Tensor
+    summary: dict[str, Any]
+
+    @staticmethod
+    def from_samples(samples: list, summary: dict[str, Any]) -> TrainingData:
+        """Stack SdfSamples (each with >= m points; all cut to the smallest m)."""
+        if not samples:
+            raise JsrteError("no training shapes")
+        m = min(len(s.sdf) for s in samples)
+        pts = torch.stack([torch.from_numpy(s.points[:m]) for s in samples])
+        sdf = torch.stack([torch.from_numpy(s.sdf[:m]) for s in samples])
+        return TrainingData(pts, sdf, summary)
+
+    @property
+    def n_shapes(self) -> int:
+        return int(self.points.shape[0])
+
+
+def batch_indices(settings: TrainSettings, n_shapes: int, m: int, step: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The (shape, sample) indices of step ``step``: (B,) and (B, K); a function of (seed, step) only.
+
+    Shapes run through a fresh permutation each epoch, so every code is updated equally often.
+    """
+    b = min(settings.shapes_per_batch, n_shapes)
+    start = step * b
+    epoch, offset = divmod(start, n_shapes)
+    shapes = []
+    while len(shapes) < b:
+        perm = torch.randperm(n_shapes, generator=torch.Generator().manual_seed(settings.seed * 1_000_003 + epoch))
+        shapes.extend(perm[offset:offset + b - len(shapes)].tolist())
+        epoch, offset = epoch + 1, 0
+    g = torch.Generator().manual_seed(settings.seed * 7_919 + step + 1)
+    samples = torch.randint(m, (b, settings.points_per_shape), generator=g)
+    return torch.tensor(shapes), samples
+
+
+def clamped_l1(pred: torch.Tensor, target: torch.Tensor, clamp: float) -> torch.Tensor:
+    """DeepSDF's loss: mean |clamp(pred) - clamp(target)|."""
+    return (pred.clamp(-clamp, clamp) - target.clamp(-clamp, clamp)).abs().mean()
+
+
+class Trainer:
+    """Trains a decoder and codes on ``data``; checkpoints to ``out_dir``."""
+
+    def __init__(self, config: DecoderConfig, settings: TrainSettings, data: TrainingData,
+                 out_dir: Path, meta: dict[str, Any]) -> None:
+        self.config, self.settings, self.data, self.out_dir = config, settings, data, Path(out_dir)
+        self.meta = meta
+        torch.manual_seed(settings.seed)
+        self.decoder = Decoder(config)
+        g = torch.Generator().manual_seed(settings.seed)
+        init = torch.randn(data.n_shapes, config.latent_size, generator=g) * settings.code_init_std
+        self.codes = torch.nn.Parameter(init)
+        self.optimizer = torch.optim.Adam([
+            {"params": list(self.decoder.parameters()), "lr": settings.lr_net},
+            {"params": [self.codes], "lr": settings.lr_codes},
+        ])
+        self.step = 0
+        self.elapsed = 0.0
+
+    # -- one step ---------------------------------------------------------------------------
+    def train_step(self) -> dict[str, float]:
+        s = self.settings
+        factor = s.lr_factor(self.step)
+        self.optimizer.param_groups[0]["lr"] = s.lr_net * factor
+        self.optimizer.param_groups[1]["lr"] = s.lr_codes * factor
+        shapes, samples = batch_indices(s, self.data.n_shapes, self.data.points.shape[1], self.step)
+        pts = self.data.points[shapes[:, None], samples].reshape(-1, 3)
+        target = self.data.sdf[shapes[:, None], samples].reshape(-1)
+        codes = self.codes[shapes]
+        per_point = codes[:, None, :].expand(-1, s.points_per_shape, -1).reshape(-1, self.config.latent_size)
+        torch.manual_seed(s.seed * 104_729 + self.step)  # dropout masks depend on the step only
+        self.decoder.train()
+        pred = self.decoder(pts, per_point)
+        l1 = clamped_l1(pred, target, s.clamp)
+        reg = s.code_reg * codes.pow(2).sum(-1).mean()
+        loss = l1 + reg
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        self.step += 1
+        return {"loss": loss.item(), "l1": l1.item(), "code_norm": float(codes.detach().norm(dim=-1).mean()),
+                "lr_net": s.lr_net * factor}
+
+    # -- running ----------------------------------------------------------------------------
+    def run(self, *, until: int | None = None, progress: bool = True) -> DeepSdfModel:
+        """Train up to step ``until`` (default: all steps), checkpointing on the way."""
+        s = self.settings
+        until = s.steps if until is None else min(until, s.steps)
+        bar = tqdm(total=s.steps, initial=self.step, desc="training", disable=not progress)
+        log_rows: list[dict[str, float]] = []
+        t0 = time.perf_counter()
+        while self.step < until:
+            row = self.train_step()
+            row["step"] = self.step
+            log_rows.append(row)
+            bar.update(1)
+            if self.step % 20 == 0:
+                bar.set_postfix(loss=f"{row['l1']:.4f}", z=f"{row['code_norm']:.3f}")
+            if self.step % s.checkpoint_every == 0 or self.step == until:
+                self.elapsed += time.perf_counter() - t0
+                t0 = time.perf_counter()
+                self.save_checkpoint(log_rows)
+                log_rows = []
+        bar.close()
+        return self.model()
+
+    def model(self) -> DeepSdfModel:
+        meta = dict(self.meta)
+        meta.update(training=dict(asdict(self.settings), steps_done=self.step,
+                                  seconds=round(self.elapsed, 1), threads=torch.get_num_threads()),
+                    data=self.data.summary)
+        return DeepSdfModel(decoder=self.decoder, codes=self.codes.detach().clone(), meta=meta)
+
+    # -- checkpoints ------------------------------------------------------------------------
+    def save_checkpoint(self, log_rows: list[dict[str, float]]) -> None:
+        """Append the log, then write the training state and the usable model, each atomically."""
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        _append_log(self.out_dir / LOG_NAME, log_rows)
+        model = self.model()
+        tensors = tensors_of(model)
+        for i, state in self.optimizer.state_dict()["state"].items():
+            for key, value in state.items():
+                tensors[f"optimizer.{i}.{key}"] = torch.as_tensor(value).contiguous()
+        meta = {"format": "jsrte-train-state", "step": self.step, "elapsed": self.elapsed,
+                "architecture": self.config.to_dict(), "settings": asdict(self.settings),
+                "model_meta": model.meta}
+        write_with(self.out_dir / STATE_NAME,
+                   lambda tmp: save_file(tensors, str(tmp), metadata={"jsrte": json.dumps(meta)}))
+        save_model(model, self.out_dir / MODEL_NAME)
+
+    def load_checkpoint(self) -> None:
+        """Restore the state written by :meth:`save_checkpoint` (for ``--resume``)."""
+        path = self.out_dir / STATE_NAME
+        meta = read_metadata(path)
+        if meta.get("format") != "jsrte-train-state":
+            raise JsrteError("not a training state file", path)
+        if DecoderConfig.from_dict(meta["architecture"]) != self.config:
+            raise JsrteError("architecture differs from the run being resumed", path)
+        saved = TrainSettings(**meta["settings"])
+        if replace(saved, steps=self.settings.steps) != replace(self.settings, steps=self.settings.steps):
+            raise JsrteError("training settings differ from the run being resumed", path)
+        tensors = load_file(str(path))
+        self.decoder.load_state_dict({k[8:]: v for k, v in tensors.items() if k.startswith("decoder.")})
+        codes = tensors["latent_codes"]
+        if codes.shape != self.codes.shape:
+            raise JsrteError(f"has {codes.shape[0]} codes but the data has {self.codes.shape[0]} shapes", path)
+        with torch.no_grad():
+            self.codes.copy_(codes)
+        state = self.optimizer.state_dict()
+        for name, value in tensors.items():
+            if name.startswith("optimizer."):
+                _, i, key = name.split(".", 2)
+                state["state"].setdefault(int(i), {})[key] = value
+        self.optimizer.load_state_dict(state)
+        self.step = int(meta["step"])
+        self.elapsed = float(meta.get("elapsed", 0.0))
+        _truncate_log(self.out_dir / LOG_NAME, self.step)
+
+
+def _append_log(path: Path, rows: list[dict[str, float]]) -> None:
+    if not rows:
+        return
+    new = not path.exists()
+    with open(path, "a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=["step", "loss", "l1", "code_norm", "lr_net"])
+        if new:
+            writer.writeheader()
+        writer.writerows(rows)
+
+
+def _truncate_log(path: Path, step: int) -> None:
+    """Drop log rows past ``step`` (written after the last checkpoint by a killed run)."""
+    if not path.exists():
+        return
+    with open(path, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if int(r["step"]) <= step]
+    path.unlink()
+    _append_log(path, [{k: float(v) for k, v in r.items()} | {"step": int(r["step"])} for r in rows])
+
+
+def seed_everything(seed: int) -> np.random.Generator:
+    torch.manual_seed(seed)
+    return np.random.default_rng(seed)

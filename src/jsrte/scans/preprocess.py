@@ -1,0 +1,477 @@
+"""The paper's real-scan preprocessing (supplementary, "SDF Sampling").
+
+Floor plane by RANSAC (its normal is the up axis, the rotation axis ω), floor removal, the
+largest cluster above the floor, statistical outlier removal, hidden point removal (Katz et
+al. 2007) when the viewpoints are known, and outward normals. All with Open3D; lengths in
+scan units (metres).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from jsrte.errors import JsrteError
+from jsrte.scans.io import ScanCloud
+
+UP_HINT = "pass the up axis explicitly with --up X,Y,Z"
+
+
+@dataclass(frozen=True)
+class PrepareSettings:
+    """Parameters of the preprocessing; lengths in metres."""
+
+    floor_distance_m: float = 0.02
+    """RANSAC inlier distance of the floor plane."""
+    floor_ransac_iterations: int = 1000
+    floor_candidates: int = 1
+    """Planes tried, biggest first, until one is plausibly a floor (more than one lets a
+    side of the object pass as a floor now and then: the biggest plane must be the floor)."""
+    floor_min_fraction: float = 0.05
+    """A floor holds at least this fraction of the points."""
+    floor_one_side: float = 0.9
+    """At least this fraction of the points off the plane must lie on one side of it."""
+    floor_sectors: int = 8
+    floor_min_sectors: int = 4
+    """A floor surrounds the object: its points beyond the object's outline (farther in the
+    plane from the object's centre than 98% of the object's points) fill at least
+    ``floor_min_sectors`` of ``floor_sectors`` equal angular sectors around the object (1% of
+    its points each). A face of the object (a box side, a chair back) fills two or three."""
+    floor_up_tolerance_deg: float = 10.0
+    """With a given up axis, a plane this close to perpendicular to it is taken as the floor."""
+    floor_clearance_m: float = 0.02
+    """Points less than this high above the floor are removed (raised to 3x the floor noise)."""
+    cluster_eps_factor: float = 4.0
+    """DBSCAN radius, in units of the median nearest-neighbour spacing."""
+    cluster_min_points: int = 10
+    sor_neighbours: int = 20
+    sor_std_ratio: float = 2.0
+    """Statistical outlier removal: drop points whose mean neighbour distance exceeds the
+    average by this many standard deviations."""
+    hpr_radius_factor: float = 1000.0
+    """Hidden point removal radius, in units of the cloud's extent. Larger keeps more noisy
+    visible points (Open3D's example uses 100, which drops ~40% of a noisy depth scan's
+    points; 1000 drops ~2% and still removes ~98% of truly hidden points)."""
+    orient_rings: tuple[float, ...] = (0.0, 30.0, 60.0)
+    orient_azimuths: int = 8
+    orient_distance_factor: float = 3.0
+    """Without known viewpoints, normals face synthetic viewpoints: ``orient_azimuths`` around
+    the up axis at each elevation (degrees) of ``orient_rings`` plus one overhead, at this many
+    object radii from the centroid (a sphere of such rings when up is unknown)."""
+    orient_decisive: float = 0.5
+    orient_neighbours: int = 10
+    """A visibility vote is decisive when its margin exceeds this fraction of its total;
+    other points follow this many nearest decided points."""
+    normal_max_nn: int = 30
+    normal_radius_factor: float = 6.0
+    """Normal estimation radius, in units of the median nearest-neighbour spacing."""
+    min_extent_m: float = 0.02
+    max_extent_m: float = 10.0
+    """A scan outside this size (largest bounding-box side, metres) has the wrong units."""
+    min_points: int = 50
+    """Fewer points left than this after preprocessing is an error."""
+
+
+@dataclass(frozen=True)
+class Floor:
+    """A floor plane ``normal . x = offset``; ``normal`` (3,) unit, towards the object.
+
+    Attributes
+    ----------
+    normal : (3,) float64
+    offset : float
+    inliers : (n,) bool over the points it was found in
+    """
+
+    normal: np.ndarray
+    offset: float
+    inliers: np.ndarray
+
+    def height(self, points: np.ndarray) -> np.ndarray:
+        """Signed height (n,) of ``points`` (n, 3) above the floor."""
+        return np.asarray(points, dtype=np.float64) @ self.normal - self.offset
+
+
+@dataclass(frozen=True)
+class PreparedScan:
+    """The object's points ready for SDF sampling.
+
+    Attributes
+    ----------
+    points : (m, 3) float64
+    normals : (m, 3) float64, unit, outward
+    up : (3,) float64, unit up axis (floor normal, or as given)
+    floor : the floor found, or None
+    index : (m,) int64, each point's index in the input cloud
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    up: np.ndarray
+    floor: Floor | None
+    index: np.ndarray = field(repr=False)
+
+
+# --- floor -----------------------------------------------------------------------------------
+
+
+def segment_floor(
+    points: np.ndarray, *, rng: np.random.Generator, distance_m: float | None = None,
+    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+) -> Floor:
+    """Find the floor: the biggest RANSAC plane (Open3D) that is plausibly a floor.
+
+    A plausible floor holds at least ``floor_min_fraction`` of the points, has (almost) all
+    other points on one side, and reaches beyond the object. The plane is refit to its
+    inliers by least squares. The normal points to the side where the object lies.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    rng : seeds Open3D's RANSAC
+    distance_m : inlier distance (default ``settings.floor_distance_m``)
+
+    Raises ``JsrteError`` saying no floor was found (and suggesting ``--up``) otherwise.
+    """
+    import open3d as o3d
+
+    points = np.asarray(points, dtype=np.float64)
+    distance = settings.floor_distance_m if distance_m is None else distance_m
+    if len(points) < 3:
+        raise JsrteError(f"no floor found: only {len(points)} points; {UP_HINT}")
+    remaining = np.arange(len(points))
+    reasons = []
+    for _ in range(settings.floor_candidates):
+        if len(remaining) < 3:
+            break
+        o3d.utility.random.seed(int(rng.integers(2**31)))
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[remaining]))
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            model, found = cloud.segment_plane(distance, 3, settings.floor_ransac_iterations)
+        if len(found) < 3:
+            break
+        normal, offset = _refit_plane(points, np.asarray(model[:3]), float(-model[3]), distance)
+        floor, reason = _as_floor(points, normal, offset, distance, settings)
+        if floor is not None:
+            return floor
+        reasons.append(reason)
+        remaining = remaining[np.setdiff1d(np.arange(len(remaining)), found)]
+    detail = "; ".join(reasons) if reasons else "no plane"
+    raise JsrteError(f"no floor found ({detail}); {UP_HINT}")
+
+
+def _refit_plane(points: np.ndarray, normal: np.ndarray, offset: float, distance: float,
+                 rounds: int = 3) -> tuple[np.ndarray, float]:
+    """Least-squares plane through the inliers of ``normal . x = offset``, iterated."""
+    n = normal / np.linalg.norm(normal)
+    d = offset / np.linalg.norm(normal)
+    for _ in range(rounds):
+        inliers = points[np.abs(points @ n - d) < distance]
+        if len(inliers) < 3:
+            break
+        centre = inliers.mean(0)
+        _, _, vt = np.linalg.svd(inliers - centre, full_matrices=False)
+        n = vt[2] if vt[2] @ n >= 0 else -vt[2]
+        d = float(centre @ n)
+    return n, d
+
+
+def _as_floor(points: np.ndarray, normal: np.ndarray, offset: float, distance: float,
+              s: PrepareSettings) -> tuple[Floor | None, str]:
+    """The plane as a Floor (normal towards the object) if plausible, else None and why."""
+    height = points @ normal - offset
+    inliers = np.abs(height) < distance
+    if inliers.mean() < s.floor_min_fraction:
+        return None, f"biggest plane holds only {inliers.mean():.1%} of the points"
+    off = np.abs(height) > 3.0 * distance
+    if off.sum() < s.min_points:
+        return None, "nothing stands on the biggest plane"
+    above = float((height[off] > 0).mean())
+    if max(above, 1.0 - above) < s.floor_one_side:
+        return None, f"a plane with points on both sides ({above:.0%} above)"
+    if above < 0.5:
+        normal, offset, height = -normal, -offset, -height
+    obj = points[height > 3.0 * distance]
+    sectors = _sectors_around(points[inliers], obj, normal, s.floor_sectors)
+    if sectors < s.floor_min_sectors:
+        return None, (f"a plane that does not surround the object (a face of it; "
+                      f"{sectors}/{s.floor_sectors} sectors)")
+    return Floor(normal=normal, offset=float(offset), inliers=inliers), ""
+
+
+def _sectors_around(plane_points: np.ndarray, obj: np.ndarray, normal: np.ndarray,
+                    sectors: int) -> int:
+    """Number of angular sectors around the object's centre (in the plane) holding at least
+    1% of ``plane_points`` (m, 3) that lie beyond the object's outline."""
+    from jsrte.geometry.sim3 import rotation_between
+
+    to_plane = rotation_between(normal, np.array([0.0, 0.0, 1.0]))
+    centre = obj.mean(0)
+    flat_obj = ((obj - centre) @ to_plane.T)[:, :2]
+    flat = ((plane_points - centre) @ to_plane.T)[:, :2]
+    outside = np.linalg.norm(flat, axis=1) > np.percentile(np.linalg.norm(flat_obj, axis=1), 98)
+    angle = np.arctan2(flat[outside, 1], flat[outside, 0])
+    counts = np.histogram(angle, bins=sectors, range=(-np.pi, np.pi))[0]
+    return int((counts >= max(1.0, 0.01 * len(plane_points))).sum())
+
+
+# --- filters ---------------------------------------------------------------------------------
+
+
+def remove_outliers(
+    points: np.ndarray, *, neighbours: int = PrepareSettings.sor_neighbours,
+    std_ratio: float = PrepareSettings.sor_std_ratio,
+) -> np.ndarray:
+    """Statistical outlier removal (Open3D): the keep mask (n,) bool of ``points`` (n, 3)."""
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+    _, kept = cloud.remove_statistical_outlier(neighbours, std_ratio)
+    return _mask(len(points), kept)
+
+
+def hidden_point_removal(
+    points: np.ndarray, viewpoint: np.ndarray, *,
+    radius_factor: float = PrepareSettings.hpr_radius_factor,
+) -> np.ndarray:
+    """Katz et al. 2007 (Open3D): mask (n,) bool of the ``points`` (n, 3) visible from
+    ``viewpoint`` (3,). The spherical-flip radius is ``radius_factor`` times the extent."""
+    import open3d as o3d
+
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) < 4:
+        return np.ones(len(points), dtype=bool)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    extent = float(np.linalg.norm(points.max(0) - points.min(0)))
+    viewpoint = np.asarray(viewpoint, dtype=np.float64).reshape(3)
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        _, visible = cloud.hidden_point_removal(viewpoint, radius_factor * extent)
+    return _mask(len(points), visible)
+
+
+def estimate_normals(
+    points: np.ndarray, *, viewpoints: np.ndarray | None = None, up: np.ndarray | None = None,
+    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+) -> np.ndarray:
+    """Unit normals (n, 3) of ``points`` (n, 3) by local PCA (Open3D), oriented outward.
+
+    Each normal is turned towards the viewpoints that see its point (hidden point removal
+    decides which; a majority vote among them, the nearest viewpoint for points none sees).
+    Without ``viewpoints`` (k, 3), synthetic viewpoints surround the object
+    (:func:`synthetic_viewpoints`; only above it when ``up`` (3,) is given): a scan sees the
+    outside of its object, so facing the viewpoints means pointing outward.
+    """
+    import open3d as o3d
+
+    points = np.asarray(points, dtype=np.float64)
+    radius = settings.normal_radius_factor * median_spacing(points)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius, settings.normal_max_nn))
+    if viewpoints is None:
+        viewpoints = synthetic_viewpoints(points, up=up, settings=settings)
+    return orient_towards_viewpoints(points, np.asarray(cloud.normals), viewpoints,
+                                     settings=settings)
+
+
+def orient_towards_viewpoints(
+    points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray, *,
+    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+) -> np.ndarray:
+    """``normals`` (n, 3) flipped so each faces the viewpoints (k, 3) that see its point.
+
+    Visibility is hidden point removal per viewpoint; each viewpoint that sees a point votes
+    for the side it lies on, weighted by the cosine. Where the vote is not decisive (a thin
+    surface seen from one side only is "seen" from both sides: the margin is below
+    ``orient_decisive`` of the total), the point agrees with its ``orient_neighbours``
+    nearest decided points instead.
+    """
+    from pykdtree.kdtree import KDTree
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    normals = np.array(normals, dtype=np.float64)
+    viewpoints = np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3)
+    vote = np.zeros(len(points))
+    total = np.zeros(len(points))
+    for viewpoint in viewpoints:
+        towards = viewpoint - points
+        cosine = np.einsum("ij,ij->i", normals, towards) / np.maximum(
+            np.linalg.norm(towards, axis=1), 1e-12)
+        seen = hidden_point_removal(points, viewpoint, radius_factor=settings.hpr_radius_factor)
+        vote += np.where(seen, cosine, 0.0)
+        total += np.where(seen, np.abs(cosine), 0.0)
+    normals[vote < 0] *= -1.0
+    decided = (total > 0) & (np.abs(vote) > settings.orient_decisive * total)
+    if decided.any() and not decided.all():
+        k = min(settings.orient_neighbours, int(decided.sum()))
+        _, near = KDTree(points[decided]).query(points[~decided], k=k)
+        near = near.reshape(len(near), k)
+        agreement = np.einsum("ikj,ij->i", normals[decided][near], normals[~decided])
+        undecided = np.flatnonzero(~decided)
+        normals[undecided[agreement < 0]] *= -1.0
+    return normals
+
+
+def synthetic_viewpoints(
+    points: np.ndarray, *, up: np.ndarray | None = None,
+    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+) -> np.ndarray:
+    """Viewpoints (k, 3) around ``points`` (n, 3): rings of ``orient_azimuths`` about ``up``
+    at the elevations ``orient_rings`` plus one overhead, ``orient_distance_factor`` radii
+    from the centroid; without ``up`` the rings are mirrored below (a whole sphere)."""
+    from jsrte.geometry.sim3 import rotation_between
+
+    points = np.asarray(points, dtype=np.float64)
+    centre = points.mean(0)
+    radius = float(np.linalg.norm(points - centre, axis=1).max()) or 1.0
+    elevations = list(settings.orient_rings)
+    if up is None:
+        elevations += [-e for e in settings.orient_rings if e > 0]
+    directions = [np.array([0.0, 1.0, 0.0])] + ([np.array([0.0, -1.0, 0.0])] if up is None else [])
+    for elevation in np.radians(elevations):
+        for azimuth in np.linspace(0.0, 2 * np.pi, settings.orient_azimuths, endpoint=False):
+            directions.append(np.array([np.cos(elevation) * np.cos(azimuth), np.sin(elevation),
+                                        np.cos(elevation) * np.sin(azimuth)]))
+    rotation = np.eye(3) if up is None else rotation_between(np.array([0.0, 1.0, 0.0]), up)
+    return centre + settings.orient_distance_factor * radius * np.array(directions) @ rotation.T
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """Median distance from a point (n, 3) to its nearest other point (0 if fewer than 2)."""
+    from pykdtree.kdtree import KDTree
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    if len(points) < 2:
+        return 0.0
+    distance, _ = KDTree(points).query(points, k=2)
+    return float(np.median(distance[:, 1]))
+
+
+def largest_cluster(points: np.ndarray, *, eps: float, min_points: int) -> np.ndarray:
+    """Mask (n,) bool of the largest DBSCAN cluster (Open3D) of ``points`` (n, 3)."""
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+    labels = np.asarray(cloud.cluster_dbscan(eps, min_points, print_progress=False))
+    if labels.max(initial=-1) < 0:
+        return np.ones(len(points), dtype=bool)
+    return labels == np.bincount(labels[labels >= 0]).argmax()
+
+
+def check_units(
+    points: np.ndarray, path: object = None, *,
+    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+) -> float:
+    """Raise ``JsrteError`` if the scan's size is implausible in metres; returns the size.
+
+    The size is the largest side of the bounding box of the 1st-99th percentiles (stray
+    points do not count). Above ``max_extent_m`` the scan is probably in millimetres (or
+    centimetres); below ``min_extent_m`` the units are wrong too.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    lo, hi = np.percentile(points, [1, 99], axis=0)
+    size = float((hi - lo).max())
+    if size > settings.max_extent_m:
+        raise JsrteError(
+            f"the scan is {size:.4g} units across, implausible for metres: probably in "
+            f"millimetres or centimetres; convert it to metres", path)
+    if size < settings.min_extent_m:
+        raise JsrteError(
+            f"the scan is only {size:.3g} units across (< {settings.min_extent_m * 100:.0f} cm in "
+            f"metres): wrong units or a degenerate scan; convert it to metres", path)
+    return size
+
+
+# --- the pipeline ----------------------------------------------------------------------------
+
+
+def prepare_scan(
+    cloud: ScanCloud, *, rng: np.random.Generator, up: np.ndarray | None = None,
+    viewpoints: np.ndarray | None = None,
+    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+) -> PreparedScan:
+    """The paper's preprocessing of a real scan: the object's points with outward normals.
+
+    Steps: unit check; floor plane (RANSAC) whose normal is the up axis unless ``up`` is
+    given (then a plane perpendicular to ``up`` is still removed as floor if found); points
+    within the floor clearance (or below the floor) removed; the largest DBSCAN cluster kept;
+    statistical outlier removal; hidden point removal from ``viewpoints`` (k, 3) if given;
+    normals kept from the file (re-oriented towards a seeing viewpoint if viewpoints are
+    known) or estimated.
+
+    Parameters
+    ----------
+    cloud : the scan (metres)
+    rng : seeds the RANSAC
+    up : (3,) the up axis if known (skips relying on the floor for it)
+    viewpoints : (k, 3) camera centres if known
+    """
+    points = cloud.points
+    check_units(points, cloud.path, settings=settings)
+    index = np.arange(len(points))
+    floor, up_axis = _floor_and_up(points, up, rng, settings, cloud.path)
+    if floor is not None:
+        index = index[_above_floor(points, floor, settings)]
+    _require(index, settings, cloud.path, "above the floor")
+    eps = settings.cluster_eps_factor * median_spacing(points[index])
+    index = index[largest_cluster(points[index], eps=eps, min_points=settings.cluster_min_points)]
+    index = index[remove_outliers(points[index], neighbours=settings.sor_neighbours,
+                                  std_ratio=settings.sor_std_ratio)]
+    if viewpoints is not None:
+        viewpoints = np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3)
+        visible = np.zeros(len(index), dtype=bool)
+        for viewpoint in viewpoints:
+            visible |= hidden_point_removal(points[index], viewpoint,
+                                            radius_factor=settings.hpr_radius_factor)
+        index = index[visible]
+    _require(index, settings, cloud.path, "after outlier removal")
+    kept = points[index]
+    if cloud.normals is None:
+        normals = estimate_normals(kept, viewpoints=viewpoints, up=up_axis, settings=settings)
+    elif viewpoints is not None:
+        normals = orient_towards_viewpoints(kept, cloud.normals[index], viewpoints,
+                                            settings=settings)
+    else:
+        normals = cloud.normals[index].copy()
+    return PreparedScan(points=kept, normals=normals, up=up_axis, floor=floor, index=index)
+
+
+def _floor_and_up(points: np.ndarray, up: np.ndarray | None, rng: np.random.Generator,
+                  s: PrepareSettings, path: object) -> tuple[Floor | None, np.ndarray]:
+    if up is None:
+        try:
+            floor = segment_floor(points, rng=rng, settings=s)
+        except JsrteError as exc:
+            raise JsrteError(str(exc), path) from None
+        return floor, floor.normal
+    up = np.asarray(up, dtype=np.float64).reshape(3)
+    if not np.linalg.norm(up) > 0:
+        raise JsrteError("the up axis must be a non-zero vector")
+    up = up / np.linalg.norm(up)
+    try:
+        floor = segment_floor(points, rng=rng, settings=s)
+    except JsrteError:
+        return None, up
+    if floor.normal @ up < np.cos(np.radians(s.floor_up_tolerance_deg)):
+        return None, up
+    return floor, up
+
+
+def _above_floor(points: np.ndarray, floor: Floor, s: PrepareSettings) -> np.ndarray:
+    """Mask of points clearly above the floor: higher than the clearance, raised to three
+    times the floor's noise (the RMS height of the points below the plane)."""
+    height = floor.height(points)
+    below = height[(height < 0) & (height > -5.0 * s.floor_distance_m)]
+    noise = float(np.sqrt(np.mean(below**2))) if len(below) else 0.0
+    return height > max(s.floor_clearance_m, 3.0 * noise)
+
+
+def _require(index: np.ndarray, s: PrepareSettings, path: object, where: str) -> None:
+    if len(index) < s.min_points:
+        raise JsrteError(f"only {len(index)} scan points left {where} (need {s.min_points})", path)
+
+
+def _mask(n: int, kept: list[int]) -> np.ndarray:
+    mask = np.zeros(n, dtype=bool)
+    mask[np.asarray(kept, dtype=np.int64)] = True
+    return mask

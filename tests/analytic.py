@@ -1,0 +1,33 @@
+"""Analytic stand-ins for a trained decoder, so the fit can be tested against exact answers."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from jsrte.model.decoder import DecoderConfig
+
+
+def box_sdf(points: torch.Tensor, centre: tuple[float, float, float], half: tuple[float, float, float]) -> torch.Tensor:
+    """Exact SDF (n,) of an axis-aligned box at ``points`` (n, 3)."""
+    q = (points - torch.tensor(centre, dtype=points.dtype)).abs() - torch.tensor(half, dtype=points.dtype)
+    outside = q.clamp(min=0).norm(dim=-1)
+    inside = q.max(dim=-1).values.clamp(max=0)
+    return outside + inside
+
+
+class LShapeDecoder(nn.Module):
+    """f(x, z): an asymmetric union of two boxes (no rotational symmetry), ignoring z.
+
+    Quacks like ``jsrte.model.decoder.Decoder`` (``config.latent_size``, ``forward(points, codes)``).
+    """
+
+    def __init__(self, latent_size: int = 4) -> None:
+        super().__init__()
+        self.config = DecoderConfig(latent_size=latent_size, hidden=8, depth=2, skip_layer=1)
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        seat = box_sdf(points, (0.0, -0.2, 0.0), (0.35, 0.08, 0.3))
+        back = box_sdf(points, (0.0, 0.25, 0.25), (0.35, 0.4, 0.06))
+        leg = box_sdf(points, (0.25, -0.55, -0.2), (0.05, 0.3, 0.05))
+        return torch.minimum(torch.minimum(seat, back), leg)

@@ -52,6 +52,6 @@ def scan(
         random_world_frame=not world_up_y,
     )
     result = scan_mesh(load_mesh(mesh), rng=np.random.default_rng(seed), settings=settings)
-    json_path = write_scan(result, out, seed=seed, mesh=mesh)
+    write_scan(result, out, seed=seed, mesh=mesh)
     typer.echo(f"wrote {out} ({len(result.points)} points, {int(result.is_object.sum())} on the "
-               f"object) and {json_path}")
+               f"object) and {out.with_suffix('.json')}")

@@ -136,7 +136,28 @@ def _read_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
             raise JsrteError(f"cannot read point cloud ({exc})", path) from exc
     points = np.asarray(cloud.points, dtype=np.float64)
     normals = np.asarray(cloud.normals, dtype=np.float64) if cloud.has_normals() else None
+    if len(points) == 0 and path.suffix.lower() in (".xyz", ".xyzn", ".pts"):
+        return _read_text_rows(path), None  # e.g. a PTS file without its count line
     return points, normals
+
+
+def _read_text_rows(path: Path, prefix: str | None = None) -> np.ndarray:
+    """x y z of every text line holding at least three numbers (after ``prefix``, if given)."""
+    rows = []
+    with path.open("r", errors="replace") as f:
+        for line in f:
+            words = line.split()
+            if prefix is not None:
+                if not words or words[0] != prefix:
+                    continue
+                words = words[1:]
+            if len(words) < 3:
+                continue
+            try:
+                rows.append([float(w) for w in words[:3]])
+            except ValueError:
+                continue
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
 def _read_mesh(path: Path, dense_points: int, rng: np.random.Generator
@@ -149,10 +170,10 @@ def _read_mesh(path: Path, dense_points: int, rng: np.random.Generator
         raise JsrteError(f"cannot read mesh ({type(exc).__name__}: {exc})", path) from exc
     if isinstance(loaded, trimesh.PointCloud):
         return np.asarray(loaded.vertices, dtype=np.float64), None
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
-        raise JsrteError("holds no points", path)
-    if len(loaded.faces) == 0:
-        return np.asarray(loaded.vertices, dtype=np.float64), None
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        if path.suffix.lower() == ".obj":  # vertices only: a point cloud
+            return _read_text_rows(path, prefix="v"), None
+        raise JsrteError("holds no triangles and no points", path)
     vertices = np.asarray(loaded.vertices, dtype=np.float64)
     if not np.all(np.isfinite(vertices)):
         raise JsrteError("has NaN or infinite coordinates", path)

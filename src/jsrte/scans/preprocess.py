@@ -1,7 +1,7 @@
 """The paper's real-scan preprocessing (supplementary, "SDF Sampling").
 
 Floor plane by RANSAC (its normal is the up axis, the rotation axis ω), floor removal, the
-largest cluster above the floor, statistical outlier removal, hidden point removal (Katz et
+object's clusters above the floor, statistical outlier removal, hidden point removal (Katz et
 al. 2007) when the viewpoints are known, and outward normals. All with Open3D; lengths in
 scan units (metres).
 """
@@ -25,9 +25,9 @@ class PrepareSettings:
     floor_distance_m: float = 0.02
     """RANSAC inlier distance of the floor plane."""
     floor_ransac_iterations: int = 1000
-    floor_candidates: int = 1
-    """Planes tried, biggest first, until one is plausibly a floor (more than one lets a
-    side of the object pass as a floor now and then: the biggest plane must be the floor)."""
+    floor_candidates: int = 3
+    """Planes tried, biggest first, until one is plausibly a floor (a big table top can hide
+    more of the floor than it shows)."""
     floor_min_fraction: float = 0.05
     """A floor holds at least this fraction of the points."""
     floor_one_side: float = 0.9
@@ -45,6 +45,8 @@ class PrepareSettings:
     cluster_eps_factor: float = 4.0
     """DBSCAN radius, in units of the median nearest-neighbour spacing."""
     cluster_min_points: int = 10
+    cluster_join_m: float = 0.1
+    """Clusters within this distance of the biggest one are parts of the object."""
     sor_neighbours: int = 20
     sor_std_ratio: float = 2.0
     """Statistical outlier removal: drop points whose mean neighbour distance exceeds the
@@ -117,19 +119,25 @@ class PreparedScan:
 
 
 def segment_floor(
-    points: np.ndarray, *, rng: np.random.Generator, distance_m: float | None = None,
-    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+    points: np.ndarray, *, rng: np.random.Generator, normals: np.ndarray | None = None,
+    viewpoints: np.ndarray | None = None, distance_m: float | None = None,
+    settings: PrepareSettings = PrepareSettings(),
 ) -> Floor:
     """Find the floor: the biggest RANSAC plane (Open3D) that is plausibly a floor.
 
     A plausible floor holds at least ``floor_min_fraction`` of the points, has (almost) all
-    other points on one side, and reaches beyond the object. The plane is refit to its
-    inliers by least squares. The normal points to the side where the object lies.
+    other points on one side, surrounds the object, and was seen from the object's side
+    (its points' ``normals``, which face the sensor, point to that side; the ``viewpoints``
+    lie on it): a table top or a side of the object fails that. Up to ``floor_candidates``
+    planes are tried, biggest first. The plane is refit to its inliers by least squares; its
+    normal points to the side where the object lies.
 
     Parameters
     ----------
     points : (n, 3) float
     rng : seeds Open3D's RANSAC
+    normals : (n, 3) float, sensor-facing normals if known
+    viewpoints : (k, 3) float, camera centres if known
     distance_m : inlier distance (default ``settings.floor_distance_m``)
 
     Raises ``JsrteError`` saying no floor was found (and suggesting ``--up``) otherwise.
@@ -154,9 +162,13 @@ def segment_floor(
         normal, offset = _refit_plane(points, np.asarray(model[:3]), float(-model[3]), distance)
         floor, reason = _as_floor(points, normal, offset, distance, settings)
         if floor is not None:
+            reason = _sensor_side_objection(floor, points, normals, viewpoints)
+        if floor is not None and not reason:
             return floor
         reasons.append(reason)
-        remaining = remaining[np.setdiff1d(np.arange(len(remaining)), found)]
+        near = np.abs(points[remaining] @ normal - offset) < distance
+        near[np.asarray(found, dtype=np.int64)] = True
+        remaining = remaining[~near]
     detail = "; ".join(reasons) if reasons else "no plane"
     raise JsrteError(f"no floor found ({detail}); {UP_HINT}")
 
@@ -175,6 +187,20 @@ def _refit_plane(points: np.ndarray, normal: np.ndarray, offset: float, distance
         n = vt[2] if vt[2] @ n >= 0 else -vt[2]
         d = float(centre @ n)
     return n, d
+
+
+def _sensor_side_objection(floor: Floor, points: np.ndarray, normals: np.ndarray | None,
+                     viewpoints: np.ndarray | None) -> str:
+    """Why ``floor`` cannot be the floor given the sensor's side, or "" if it can."""
+    if viewpoints is not None:
+        below = floor.height(np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3)) < 0
+        if below.any():
+            return f"a plane with {int(below.sum())} viewpoint(s) below it"
+    if normals is not None:
+        facing = np.asarray(normals, dtype=np.float64)[floor.inliers] @ floor.normal
+        if np.median(facing) < 0:
+            return "a plane seen from the side away from the object (a top or side of it)"
+    return ""
 
 
 def _as_floor(points: np.ndarray, normal: np.ndarray, offset: float, distance: float,
@@ -252,7 +278,7 @@ def hidden_point_removal(
 
 def estimate_normals(
     points: np.ndarray, *, viewpoints: np.ndarray | None = None, up: np.ndarray | None = None,
-    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+    settings: PrepareSettings = PrepareSettings(),
 ) -> np.ndarray:
     """Unit normals (n, 3) of ``points`` (n, 3) by local PCA (Open3D), oriented outward.
 
@@ -276,7 +302,7 @@ def estimate_normals(
 
 def orient_towards_viewpoints(
     points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray, *,
-    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+    settings: PrepareSettings = PrepareSettings(),
 ) -> np.ndarray:
     """``normals`` (n, 3) flipped so each faces the viewpoints (k, 3) that see its point.
 
@@ -314,7 +340,7 @@ def orient_towards_viewpoints(
 
 def synthetic_viewpoints(
     points: np.ndarray, *, up: np.ndarray | None = None,
-    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+    settings: PrepareSettings = PrepareSettings(),
 ) -> np.ndarray:
     """Viewpoints (k, 3) around ``points`` (n, 3): rings of ``orient_azimuths`` about ``up``
     at the elevations ``orient_rings`` plus one overhead, ``orient_distance_factor`` radii
@@ -347,20 +373,38 @@ def median_spacing(points: np.ndarray) -> float:
     return float(np.median(distance[:, 1]))
 
 
-def largest_cluster(points: np.ndarray, *, eps: float, min_points: int) -> np.ndarray:
-    """Mask (n,) bool of the largest DBSCAN cluster (Open3D) of ``points`` (n, 3)."""
+def object_cluster(points: np.ndarray, *, eps: float, min_points: int, join_m: float
+                   ) -> np.ndarray:
+    """Mask (n,) bool of the object in ``points`` (n, 3): the largest DBSCAN cluster (Open3D)
+    and every cluster that comes within ``join_m`` of it (parts of one object, such as a thin
+    column's base, split apart by sparse sampling); DBSCAN's noise points are dropped."""
     import open3d as o3d
+    from pykdtree.kdtree import KDTree
 
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     labels = np.asarray(cloud.cluster_dbscan(eps, min_points, print_progress=False))
     if labels.max(initial=-1) < 0:
         return np.ones(len(points), dtype=bool)
-    return labels == np.bincount(labels[labels >= 0]).argmax()
+    sizes = np.bincount(labels[labels >= 0])
+    keep = labels == sizes.argmax()
+    pending = [k for k in np.argsort(-sizes) if k != sizes.argmax()]
+    grew = True
+    while grew and pending:
+        grew = False
+        tree = KDTree(points[keep])
+        for k in list(pending):
+            distance, _ = tree.query(points[labels == k], k=1)
+            if distance.min() <= join_m:
+                keep |= labels == k
+                pending.remove(k)
+                grew = True
+    return keep
 
 
 def check_units(
     points: np.ndarray, path: object = None, *,
-    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+    settings: PrepareSettings = PrepareSettings(),
 ) -> float:
     """Raise ``JsrteError`` if the scan's size is implausible in metres; returns the size.
 
@@ -388,16 +432,16 @@ def check_units(
 def prepare_scan(
     cloud: ScanCloud, *, rng: np.random.Generator, up: np.ndarray | None = None,
     viewpoints: np.ndarray | None = None,
-    settings: PrepareSettings = PrepareSettings(),  # noqa: B008 (frozen)
+    settings: PrepareSettings = PrepareSettings(),
 ) -> PreparedScan:
     """The paper's preprocessing of a real scan: the object's points with outward normals.
 
-    Steps: unit check; floor plane (RANSAC) whose normal is the up axis unless ``up`` is
-    given (then a plane perpendicular to ``up`` is still removed as floor if found); points
-    within the floor clearance (or below the floor) removed; the largest DBSCAN cluster kept;
-    statistical outlier removal; hidden point removal from ``viewpoints`` (k, 3) if given;
-    normals kept from the file (re-oriented towards a seeing viewpoint if viewpoints are
-    known) or estimated.
+    Steps: unit check; floor plane (RANSAC, :func:`segment_floor`) whose normal is the up
+    axis unless ``up`` is given (then a plane perpendicular to ``up`` is still removed as
+    floor if found); points within the floor clearance (or below the floor) removed; the
+    largest DBSCAN cluster kept with the clusters near it; statistical outlier removal;
+    hidden point removal from ``viewpoints`` (k, 3) if given; normals kept from the file
+    (re-oriented towards the viewpoints that see them if viewpoints are known) or estimated.
 
     Parameters
     ----------
@@ -409,16 +453,18 @@ def prepare_scan(
     points = cloud.points
     check_units(points, cloud.path, settings=settings)
     index = np.arange(len(points))
-    floor, up_axis = _floor_and_up(points, up, rng, settings, cloud.path)
+    if viewpoints is not None:
+        viewpoints = np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3)
+    floor, up_axis = _floor_and_up(cloud, up, viewpoints, rng, settings)
     if floor is not None:
         index = index[_above_floor(points, floor, settings)]
     _require(index, settings, cloud.path, "above the floor")
     eps = settings.cluster_eps_factor * median_spacing(points[index])
-    index = index[largest_cluster(points[index], eps=eps, min_points=settings.cluster_min_points)]
+    index = index[object_cluster(points[index], eps=eps, min_points=settings.cluster_min_points,
+                                 join_m=settings.cluster_join_m)]
     index = index[remove_outliers(points[index], neighbours=settings.sor_neighbours,
                                   std_ratio=settings.sor_std_ratio)]
     if viewpoints is not None:
-        viewpoints = np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3)
         visible = np.zeros(len(index), dtype=bool)
         for viewpoint in viewpoints:
             visible |= hidden_point_removal(points[index], viewpoint,
@@ -436,20 +482,23 @@ def prepare_scan(
     return PreparedScan(points=kept, normals=normals, up=up_axis, floor=floor, index=index)
 
 
-def _floor_and_up(points: np.ndarray, up: np.ndarray | None, rng: np.random.Generator,
-                  s: PrepareSettings, path: object) -> tuple[Floor | None, np.ndarray]:
+def _floor_and_up(cloud: ScanCloud, up: np.ndarray | None, viewpoints: np.ndarray | None,
+                  rng: np.random.Generator, s: PrepareSettings) -> tuple[Floor | None, np.ndarray]:
+    """The floor (None if there is none, allowed only with ``up``) and the unit up axis."""
     if up is None:
         try:
-            floor = segment_floor(points, rng=rng, settings=s)
+            floor = segment_floor(cloud.points, rng=rng, normals=cloud.normals,
+                                  viewpoints=viewpoints, settings=s)
         except JsrteError as exc:
-            raise JsrteError(str(exc), path) from None
+            raise JsrteError(str(exc), cloud.path) from None
         return floor, floor.normal
     up = np.asarray(up, dtype=np.float64).reshape(3)
     if not np.linalg.norm(up) > 0:
         raise JsrteError("the up axis must be a non-zero vector")
     up = up / np.linalg.norm(up)
     try:
-        floor = segment_floor(points, rng=rng, settings=s)
+        floor = segment_floor(cloud.points, rng=rng, normals=cloud.normals,
+                              viewpoints=viewpoints, settings=s)
     except JsrteError:
         return None, up
     if floor.normal @ up < np.cos(np.radians(s.floor_up_tolerance_deg)):

@@ -85,12 +85,6 @@ class ScannerSettings:
     normal_max_nn: int = 30
     """Neighbourhood of the normal estimation (Open3D hybrid search)."""
 
-    def with_(self, **changes: Any) -> ScannerSettings:
-        """A copy with ``changes`` applied."""
-        from dataclasses import replace
-
-        return replace(self, **changes)
-
 
 @dataclass(frozen=True)
 class VirtualScan:
@@ -142,7 +136,7 @@ def scan_mesh(
     mesh: trimesh.Trimesh,
     *,
     rng: np.random.Generator,
-    settings: ScannerSettings = ScannerSettings(),  # noqa: B008 (frozen, immutable)
+    settings: ScannerSettings = ScannerSettings(),
 ) -> VirtualScan:
     """Scan ``mesh`` (canonical orientation: +y up, front -z; any units) standing on a floor.
 
@@ -203,7 +197,7 @@ def write_scan(
     """Write ``scan`` as a binary PLY with normals and colours, and ``<stem>.json`` beside it.
 
     Both files are written atomically. Object points are coloured ``OBJECT_COLOR``, floor
-    points ``FLOOR_COLOR``. Returns the JSON path.
+    points ``FLOOR_COLOR``. Returns ``ply_path`` (the JSON is ``ply_path.with_suffix(".json")``).
     """
     import json
 
@@ -220,7 +214,7 @@ def write_scan(
         if not o3d.io.write_point_cloud(str(tmp_ply), cloud, write_ascii=False):
             raise JsrteError("could not write point cloud", ply_path)
         tmp_json.write_text(text)
-    return json_path
+    return ply_path
 
 
 # --- scene -----------------------------------------------------------------------------------

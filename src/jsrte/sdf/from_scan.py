@@ -16,7 +16,7 @@ from jsrte.presets import ScanSdf
 
 def scan_sdf_samples(
     points: np.ndarray, normals: np.ndarray, *, rng: np.random.Generator,
-    settings: ScanSdf = ScanSdf(),  # noqa: B008 (frozen)
+    settings: ScanSdf = ScanSdf(),
 ) -> tuple[np.ndarray, np.ndarray]:
     """SDF samples of a scan, exactly as the paper's supplementary builds them.
 

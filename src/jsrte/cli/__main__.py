@@ -1,0 +1,5 @@
+"""``python -m jsrte.cli``."""
+
+from jsrte.cli import main
+
+main()

@@ -1,0 +1,118 @@
+"""The JSRTE fit: recover known similarity transforms; initialization; scale bounds; the CLI."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from analytic import LShapeDecoder
+
+from jsrte.fit.api import fit_query
+from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
+from jsrte.fit.optimize import SdfQuery, optimize
+from jsrte.fit.params import HypothesisBatch, Init
+from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
+from jsrte.model.checkpoint import DeepSdfModel
+from jsrte.model.decode import decode_mesh
+from jsrte.presets import FAST
+from jsrte.sdf.mesh_sdf import signed_distance
+
+SETTINGS = replace(FAST.fit, iterations=150, samples_per_iteration=1500, lr_decay_every=100, prune_after=20,
+                   prune_keep=2, selection="loss", extract_resolution=48)
+
+
+@pytest.fixture(scope="module")
+def lshape():
+    decoder = LShapeDecoder()
+    return DeepSdfModel(decoder, torch.zeros(1, 4), {"name": "lshape", "canonical_height": 1.5,
+                                                     "canonical_radius": 0.95})
+
+
+@pytest.fixture(scope="module")
+def lshape_mesh(lshape):
+    return decode_mesh(lshape.decoder, torch.zeros(4), resolution=48).mesh
+
+
+def make_query(mesh, truth: Sim3, up, rng) -> SdfQuery:
+    placed = mesh.copy()
+    placed.vertices = truth.apply(mesh.vertices)
+    surface = np.asarray(placed.sample(3000, seed=1))
+    points = np.concatenate([surface + rng.normal(size=surface.shape) * 0.02,
+                             surface + rng.normal(size=surface.shape) * 0.15])
+    floor = None if up is None else float((placed.vertices @ up).min())
+    return SdfQuery(points, signed_distance(placed, points), surface, up=up, floor_offset=floor)
+
+
+def tilted_truth(theta: float) -> tuple[Sim3, np.ndarray]:
+    up = np.array([0.3, 0.9, -0.2])
+    up /= np.linalg.norm(up)
+    rotation = axis_angle_matrix(up, theta) @ rotation_between([0, 1, 0], up)
+    return Sim3(1.7, rotation, np.array([2.0, -1.0, 0.5])), up
+
+
+def test_known_axis_recovers_transform_from_theta_grid(lshape, lshape_mesh):
+    truth, up = tilted_truth(theta=2.2)
+    query = make_query(lshape_mesh, truth, up, np.random.default_rng(0))
+    result = fit_query(lshape, query, SETTINGS, seed=0)
+    assert result.transform.s == pytest.approx(truth.s, rel=0.03)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 3.0
+    assert np.linalg.norm(result.transform.t - truth.t) < 0.05
+    assert sum(not h.pruned for h in result.hypotheses) == SETTINGS.prune_keep
+    assert len(result.hypotheses) == 12
+
+
+def test_unknown_axis_recovers_transform_from_nearby_start(lshape, lshape_mesh):
+    rng = np.random.default_rng(1)
+    truth, up = tilted_truth(theta=-0.7)
+    query = make_query(lshape_mesh, truth, None, rng)
+    # the paper's synthetic setting: R = R(psi, rho, theta), axis unknown, start near the truth
+    axis_angle = torch.tensor(0.0)
+    psi, rho = spherical_from_axis(np.array([0.2, 0.7, 0.68]))
+    true_r = axis_angle_matrix(np.array([np.sin(psi) * np.cos(rho), np.sin(psi) * np.sin(rho), np.cos(psi)]), 0.9)
+    truth = Sim3(1.3, true_r, np.array([0.5, 1.0, -2.0]))
+    query = make_query(lshape_mesh, truth, None, rng)
+    start = Init(scale=1.3 * 1.2, psi=psi + 0.05, rho=rho - 0.05, theta=0.9 + 0.25,
+                 translation=truth.t + np.array([0.08, -0.05, 0.05]))
+    result = fit_query(lshape, query, replace(SETTINGS, iterations=250), inits=[start], seed=0)
+    assert result.transform.s == pytest.approx(truth.s, rel=0.03)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 3.0
+    assert np.linalg.norm(result.transform.t - truth.t) < 0.05
+    del axis_angle
+
+
+def test_fixed_parameters_do_not_move_and_scale_stays_in_bounds(lshape, lshape_mesh):
+    truth, up = tilted_truth(theta=0.3)
+    query = make_query(lshape_mesh, truth, up, np.random.default_rng(2))
+    psi, rho = spherical_from_axis(up)
+    inits = [Init(scale=0.02, psi=psi, rho=rho, theta=0.3, translation=truth.t,
+                  base_rotation=rotation_between([0, 1, 0], up))]
+    settings = replace(SETTINGS, iterations=30, prune_after=None, scale_min=0.01, scale_max=0.05)
+    out = optimize(lshape.decoder, query, inits, settings, fixed=frozenset({"psi", "rho", "translation"}),
+                   generator=torch.Generator().manual_seed(0))
+    batch = out.batch
+    assert float(batch.psi[0]) == psi and float(batch.rho[0]) == rho
+    np.testing.assert_array_equal(batch.translation[0].detach().numpy(), truth.t)
+    assert 0.01 <= float(batch.scale[0]) <= 0.05
+
+
+def test_initialization_from_floor_and_height(lshape_mesh):
+    truth, up = tilted_truth(theta=1.0)
+    query = make_query(lshape_mesh, truth, up, np.random.default_rng(3))
+    geometry = ClassGeometry(height=float(np.ptp(lshape_mesh.vertices[:, 1])), radius=0.9)
+    inits = initial_hypotheses(query, geometry, replace(SETTINGS, init_scale="height"))
+    assert len(inits) == 12
+    np.testing.assert_allclose([i.theta for i in inits], theta_grid(30.0))
+    assert inits[0].scale == pytest.approx(truth.s, rel=0.02)
+    # the base rotation takes canonical +y to the floor normal, so theta turns about up
+    batch = HypothesisBatch(inits, 4, latent_init_std=0.01)
+    rotations = batch.rotation().detach().numpy()
+    np.testing.assert_allclose(rotations @ np.array([0, 1, 0]), np.tile(up, (12, 1)), atol=1e-9)
+    # one of the 30-degree starts lies within 15 degrees of the true rotation
+    assert min(rotation_angle_deg(r, truth.R) for r in rotations) <= 15.0 + 1e-6
+
+
+def test_hypotheses_are_one_batch_not_a_loop(lshape):
+    inits = [Init(1.0, 0.0, 0.0, t, np.zeros(3)) for t in theta_grid(30.0)]
+    batch = HypothesisBatch(inits, 4, latent_init_std=0.01)
+    assert batch.to_canonical(torch.zeros(5, 3, dtype=torch.float64)).shape == (12, 5, 3)
+    assert batch.latent.shape == (12, 4)

@@ -25,6 +25,8 @@ needs_pcl = pytest.mark.skipif(not pcl_binding.available(),
 UP = np.array([0.2, 0.95, -0.1]) / np.linalg.norm([0.2, 0.95, -0.1])
 TINY_POINTNET = PointNetSettings(points=128, epochs=10, copies_per_epoch=6, batch_size=16, lr=3e-3,
                                  lr_decay_every=8, widths=(32, 64, 128), head=(64,), dropout=0.1)
+SMALL_POINTNET = PointNetSettings(points=256, epochs=12, copies_per_epoch=6, batch_size=16, lr=3e-3,
+                                  lr_decay_every=8, widths=(32, 64, 128), head=(64,), dropout=0.1)
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +78,8 @@ def test_shot_at_keypoints_of_a_rotated_cloud_matches(database):
 
     st = HarrisShotSettings()
     points, normals = database.points(2), database.normals(2)
-    keypoints, _ = pcl_binding.harris3d(points, normals, radius=st.harris_radius, threshold=st.harris_threshold)
+    keypoints, _ = pcl_binding.harris3d(points, normals, radius=st.harris_radius,
+                                        threshold=st.harris_threshold)
     assert len(keypoints) >= 10
     r = upright_rotation(UP, 1.1)
     a = pcl_binding.shot(points, normals, keypoints, radius=st.shot_radius)
@@ -131,7 +134,7 @@ def mean_alignment_error(result: FitResult, query: np.ndarray) -> float:
 def test_each_baseline_retrieves_a_database_shape_and_places_it(name, database, tmp_path):
     if name in ("harris3d-shot", "ourcvfh-icp") and not pcl_binding.available():
         pytest.skip("PCL is not installed")
-    options = {"pointnet-icp": {"settings": TINY_POINTNET, "cache": tmp_path},
+    options = {"pointnet-icp": {"settings": SMALL_POINTNET, "cache": tmp_path},
                "fpfh-ransac-icp": {"settings": FpfhSettings(ransac_iterations=10_000)}}.get(name, {})
     baseline = get_baseline(name, **options)
     g = truth(yaw_deg=200.0, scale=0.8)
@@ -189,8 +192,8 @@ def test_cli_help_lists_the_four_baselines():
 def test_cli_baseline_writes_the_fit_files(tmp_path, monkeypatch, run_cli):
     monkeypatch.setenv("JSRTE_CACHE", str(tmp_path / "cache"))
     model = tmp_path / "model"
-    code, _, err = run_cli(["train", "--category", "chair", "--shapes", "3", "--steps", "2", "--samples", "3000",
-                            "--out", str(model), "--no-progress"])
+    code, _, err = run_cli(["train", "--category", "chair", "--shapes", "3", "--steps", "2",
+                            "--samples", "3000", "--out", str(model), "--no-progress"])
     assert code == 0, err
     mesh = tmp_path / "query.obj"
     chair = generate_set("chair", 3, 0)[1].mesh
@@ -209,7 +212,8 @@ def test_cli_baseline_writes_the_fit_files(tmp_path, monkeypatch, run_cli):
     assert abs(fit["scale"] / expected_scale - 1.0) < 0.05
     code, _, err = run_cli(args)
     assert code == 2 and "--overwrite" in err
-    code, _, err = run_cli(["baseline", "nope", str(mesh), "--model", str(model), "--out", str(tmp_path / "x")])
+    code, _, err = run_cli(["baseline", "nope", str(mesh), "--model", str(model),
+                            "--out", str(tmp_path / "x")])
     assert code == 2 and "unknown baseline" in err and not (tmp_path / "x").exists()
 
 

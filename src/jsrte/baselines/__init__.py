@@ -32,9 +32,13 @@ baselines raise a ``JsrteError`` that says what to install, and the other two st
 
 from __future__ import annotations
 
-from jsrte.baselines.base import Baseline, BaselineFailed
-from jsrte.baselines.database import ShapeDatabase
+from typing import TYPE_CHECKING, Any
+
 from jsrte.errors import JsrteError
+
+if TYPE_CHECKING:
+    from jsrte.baselines.base import Baseline, BaselineFailed
+    from jsrte.baselines.database import ShapeDatabase
 
 BASELINE_NAMES = ("harris3d-shot", "ourcvfh-icp", "pointnet-icp", "fpfh-ransac-icp")
 """The baselines, in the order of the paper's table (Open3D's last)."""
@@ -55,6 +59,19 @@ def get_baseline(name: str, **options: object) -> Baseline:
     else:
         raise JsrteError(f"unknown baseline {name!r} (known: {', '.join(BASELINE_NAMES)})")
     return cls(**options)
+
+
+def __getattr__(name: str) -> Any:
+    """Import the heavier names on first use (keeps ``jsrte --help`` and the CLI start fast)."""
+    if name in ("Baseline", "BaselineFailed"):
+        from jsrte.baselines import base
+
+        return getattr(base, name)
+    if name == "ShapeDatabase":
+        from jsrte.baselines.database import ShapeDatabase
+
+        return ShapeDatabase
+    raise AttributeError(f"module 'jsrte.baselines' has no attribute {name!r}")
 
 
 __all__ = ["BASELINE_NAMES", "NEEDS_PCL", "Baseline", "BaselineFailed", "ShapeDatabase", "get_baseline"]

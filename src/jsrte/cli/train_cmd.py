@@ -19,7 +19,8 @@ _DEFAULT = TrainSettings()
 @app.command("train")
 def train(
     out: Path = typer.Option(..., "--out", help="Run folder: checkpoints, log, model.safetensors."),
-    category: str = typer.Option("chair", help="Shape class (procedural data, or the ShapeNet synset with --data)."),
+    category: str = typer.Option("chair", help="Shape class (procedural data, or the ShapeNet synset "
+                                                "with --data)."),
     shapes: int = typer.Option(100, "--shapes", help="Number of procedural training shapes."),
     data: Path = typer.Option(None, "--data", help="Train on this folder of meshes / ShapeNet root instead."),
     arch: str = typer.Option("cpu", help=f"Decoder architecture: {', '.join(ARCHITECTURES)}."),
@@ -36,7 +37,13 @@ def train(
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
 ) -> None:
-    """Train decoder weights and per-shape latent codes (clamped L1, code regularization)."""
+    """Train decoder weights and per-shape latent codes (clamped L1, code regularization).
+
+    Under ``torchrun --nproc_per_node=N`` the same command trains data-parallel: each step's
+    batch of shapes is split across the N processes (docs/scale.md).
+    """
+    from jsrte.model.distributed import init_from_env, main_process_first, shutdown
+
     if arch not in ARCHITECTURES:
         raise JsrteError(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")
     state = out / STATE_NAME
@@ -44,20 +51,33 @@ def train(
         raise JsrteError("already holds a training run; pass --resume to continue it", out)
     if resume and not state.exists():
         raise JsrteError(f"nothing to resume ({STATE_NAME} missing)", out)
-    set_threads(threads)
+    ctx = init_from_env()
+    set_threads(threads or (None if ctx is None else _threads_per_process()))
     settings = TrainSettings(steps=steps, shapes_per_batch=batch_shapes, points_per_shape=points,
                              lr_net=lr_net, lr_codes=lr_codes, checkpoint_every=checkpoint_every,
                              seed=seed)
     sampling = SdfSampling(n_points=samples)
-    training_data = _load_data(out, category, shapes, data, sampling)
+    with main_process_first(ctx):  # rank 0 samples the data, the others read its cache
+        training_data = _load_data(out, category, shapes, data, sampling)
     meta = {"name": name or category, "category": category, "arch": arch}
-    trainer = Trainer(ARCHITECTURES[arch], settings, training_data, out, meta)
+    trainer = Trainer(ARCHITECTURES[arch], settings, training_data, out, meta, dist=ctx)
     if resume:
         trainer.load_checkpoint()
-        typer.echo(f"resuming at step {trainer.step} of {settings.steps}")
+        if trainer.is_main:
+            typer.echo(f"resuming at step {trainer.step} of {settings.steps}")
     trainer.run(progress=progress)
+    shutdown(ctx)
+    if not trainer.is_main:
+        return
     typer.echo(f"wrote {out / MODEL_NAME} ({training_data.n_shapes} shapes, {trainer.step} steps, "
                f"{trainer.elapsed / 60:.1f} min)")
+
+
+def _threads_per_process() -> int:
+    """The node's cores shared by the processes torchrun started on it."""
+    import os
+
+    return max(1, (os.cpu_count() or 1) // int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
 
 
 def _load_data(out: Path, category: str, shapes: int, data: Path | None, sampling: SdfSampling):  # noqa: ANN202

@@ -24,6 +24,7 @@ from jsrte.errors import JsrteError
 from jsrte.io import write_with
 from jsrte.model.checkpoint import DeepSdfModel, read_metadata, save_model, tensors_of
 from jsrte.model.decoder import Decoder, DecoderConfig
+from jsrte.model.distributed import DROPOUT_RANK_STRIDE, DistContext, average_gradient, sum_over_ranks
 
 STATE_NAME = "train_state.safetensors"
 MODEL_NAME = "model.safetensors"
@@ -87,7 +88,8 @@ class TrainingData:
         return int(self.points.shape[0])
 
 
-def batch_indices(settings: TrainSettings, n_shapes: int, m: int, step: int) -> tuple[torch.Tensor, torch.Tensor]:
+def batch_indices(settings: TrainSettings, n_shapes: int, m: int,
+                  step: int) -> tuple[torch.Tensor, torch.Tensor]:
     """The (shape, sample) indices of step ``step``: (B,) and (B, K); a function of (seed, step) only.
 
     Shapes run through a fresh permutation each epoch, so every code is updated equally often.
@@ -97,7 +99,8 @@ def batch_indices(settings: TrainSettings, n_shapes: int, m: int, step: int) -> 
     epoch, offset = divmod(start, n_shapes)
     shapes = []
     while len(shapes) < b:
-        perm = torch.randperm(n_shapes, generator=torch.Generator().manual_seed(settings.seed * 1_000_003 + epoch))
+        generator = torch.Generator().manual_seed(settings.seed * 1_000_003 + epoch)
+        perm = torch.randperm(n_shapes, generator=generator)
         shapes.extend(perm[offset:offset + b - len(shapes)].tolist())
         epoch, offset = epoch + 1, 0
     g = torch.Generator().manual_seed(settings.seed * 7_919 + step + 1)
@@ -111,17 +114,29 @@ def clamped_l1(pred: torch.Tensor, target: torch.Tensor, clamp: float) -> torch.
 
 
 class Trainer:
-    """Trains a decoder and codes on ``data``; checkpoints to ``out_dir``."""
+    """Trains a decoder and codes on ``data``; checkpoints to ``out_dir``.
+
+    With ``dist`` (a torchrun job, :mod:`jsrte.model.distributed`) each rank computes its block
+    of every step's batch; only rank 0 writes checkpoints and the log.
+    """
 
     def __init__(self, config: DecoderConfig, settings: TrainSettings, data: TrainingData,
-                 out_dir: Path, meta: dict[str, Any]) -> None:
+                 out_dir: Path, meta: dict[str, Any], *, dist: DistContext | None = None) -> None:
         self.config, self.settings, self.data, self.out_dir = config, settings, data, Path(out_dir)
         self.meta = meta
+        self.dist = dist
         torch.manual_seed(settings.seed)
         self.decoder = Decoder(config)
         g = torch.Generator().manual_seed(settings.seed)
         init = torch.randn(data.n_shapes, config.latent_size, generator=g) * settings.code_init_std
+        if dist is not None:
+            if min(settings.shapes_per_batch, data.n_shapes) < dist.world_size:
+                b = min(settings.shapes_per_batch, data.n_shapes)
+                raise JsrteError(f"a batch of {b} shapes cannot be split across {dist.world_size} processes")
+            self.decoder.to(dist.device)
+            init = init.to(dist.device)
         self.codes = torch.nn.Parameter(init)
+        self.network = self.decoder if dist is None else _data_parallel(self.decoder, dist)
         self.optimizer = torch.optim.Adam([
             {"params": list(self.decoder.parameters()), "lr": settings.lr_net},
             {"params": [self.codes], "lr": settings.lr_codes},
@@ -136,6 +151,8 @@ class Trainer:
         self.optimizer.param_groups[0]["lr"] = s.lr_net * factor
         self.optimizer.param_groups[1]["lr"] = s.lr_codes * factor
         shapes, samples = batch_indices(s, self.data.n_shapes, self.data.points.shape[1], self.step)
+        if self.dist is not None:
+            return self._distributed_step(shapes, samples, factor)
         pts = self.data.points[shapes[:, None], samples].reshape(-1, 3)
         target = self.data.sdf[shapes[:, None], samples].reshape(-1)
         codes = self.codes[shapes]
@@ -153,12 +170,47 @@ class Trainer:
         return {"loss": loss.item(), "l1": l1.item(), "code_norm": float(codes.detach().norm(dim=-1).mean()),
                 "lr_net": s.lr_net * factor}
 
+    def _distributed_step(self, shapes: torch.Tensor, samples: torch.Tensor,
+                          factor: float) -> dict[str, float]:
+        """This rank's block of the global batch; the same update as :meth:`train_step` on one process.
+
+        The rank's loss is its share of the global loss (l1 summed over its points / (B K), the
+        code term summed over its shapes / B), so the shares add up to the single-process loss.
+        DDP averages gradients over ranks, hence ``backward`` on world_size x the share; the code
+        table's gradient is averaged the same way.
+        """
+        s, d = self.settings, self.dist
+        mine = d.shard(len(shapes))
+        local_shapes, local_samples = shapes[mine], samples[mine]
+        pts = self.data.points[local_shapes[:, None], local_samples].reshape(-1, 3).to(d.device)
+        target = self.data.sdf[local_shapes[:, None], local_samples].reshape(-1).to(d.device)
+        codes = self.codes[local_shapes.to(d.device)]
+        per_point = codes[:, None, :].expand(-1, s.points_per_shape, -1).reshape(-1, self.config.latent_size)
+        code_norm = float(self.codes.detach()[shapes.to(d.device)].norm(dim=-1).mean())
+        torch.manual_seed(s.seed * 104_729 + self.step + DROPOUT_RANK_STRIDE * d.rank)
+        self.decoder.train()
+        pred = self.network(pts, per_point)
+        l1 = (pred.clamp(-s.clamp, s.clamp) - target.clamp(-s.clamp, s.clamp)).abs().sum() / samples.numel()
+        loss = l1 + s.code_reg * codes.pow(2).sum() / len(shapes)
+        self.optimizer.zero_grad(set_to_none=True)
+        (loss * d.world_size).backward()
+        average_gradient(self.codes, d)
+        self.optimizer.step()
+        self.step += 1
+        total_loss, total_l1 = sum_over_ranks(torch.stack([loss, l1])).tolist()
+        return {"loss": total_loss, "l1": total_l1, "code_norm": code_norm, "lr_net": s.lr_net * factor}
+
+    @property
+    def is_main(self) -> bool:
+        """Whether this process writes checkpoints and logs (always, unless rank > 0 under torchrun)."""
+        return self.dist is None or self.dist.is_main
+
     # -- running ----------------------------------------------------------------------------
     def run(self, *, until: int | None = None, progress: bool = True) -> DeepSdfModel:
         """Train up to step ``until`` (default: all steps), checkpointing on the way."""
         s = self.settings
         until = s.steps if until is None else min(until, s.steps)
-        bar = tqdm(total=s.steps, initial=self.step, desc="training", disable=not progress)
+        bar = tqdm(total=s.steps, initial=self.step, desc="training", disable=not (progress and self.is_main))
         log_rows: list[dict[str, float]] = []
         t0 = time.perf_counter()
         while self.step < until:
@@ -171,7 +223,8 @@ class Trainer:
             if self.step % s.checkpoint_every == 0 or self.step == until:
                 self.elapsed += time.perf_counter() - t0
                 t0 = time.perf_counter()
-                self.save_checkpoint(log_rows)
+                if self.is_main:
+                    self.save_checkpoint(log_rows)
                 log_rows = []
         bar.close()
         return self.model()
@@ -181,6 +234,8 @@ class Trainer:
         meta.update(training=dict(asdict(self.settings), steps_done=self.step,
                                   seconds=round(self.elapsed, 1), threads=torch.get_num_threads()),
                     data=self.data.summary)
+        if self.dist is not None:
+            meta["training"].update(world_size=self.dist.world_size, device=self.dist.device.type)
         return DeepSdfModel(decoder=self.decoder, codes=self.codes.detach().clone(), meta=meta)
 
     # -- checkpoints ------------------------------------------------------------------------
@@ -215,7 +270,8 @@ class Trainer:
         self.decoder.load_state_dict({k[8:]: v for k, v in tensors.items() if k.startswith("decoder.")})
         codes = tensors["latent_codes"]
         if codes.shape != self.codes.shape:
-            raise JsrteError(f"has {codes.shape[0]} codes but the data has {self.codes.shape[0]} shapes", path)
+            raise JsrteError(f"has {codes.shape[0]} codes but the data has {self.codes.shape[0]} shapes",
+                             path)
         with torch.no_grad():
             self.codes.copy_(codes)
         state = self.optimizer.state_dict()
@@ -226,7 +282,16 @@ class Trainer:
         self.optimizer.load_state_dict(state)
         self.step = int(meta["step"])
         self.elapsed = float(meta.get("elapsed", 0.0))
-        _truncate_log(self.out_dir / LOG_NAME, self.step)
+        if self.is_main:
+            _truncate_log(self.out_dir / LOG_NAME, self.step)
+
+
+def _data_parallel(decoder: Decoder, ctx: DistContext) -> torch.nn.Module:
+    """``decoder`` in DistributedDataParallel (its weights broadcast from rank 0)."""
+    from torch.nn.parallel import DistributedDataParallel
+
+    device_ids = [ctx.device] if ctx.device.type == "cuda" else None
+    return DistributedDataParallel(decoder, device_ids=device_ids)
 
 
 def _append_log(path: Path, rows: list[dict[str, float]]) -> None:

@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# Install PCL (Debian libpcl-dev) and build the small pybind11 binding of the paper's PCL
+# baselines (Harris3D + SHOT, OUR-CVFH) into the cache, when root; otherwise say what to do.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ ! -f /usr/include/pcl-1.13/pcl/features/shot.h ]; then
+  if [ "$(id -u)" = 0 ]; then
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libpcl-dev pybind11-dev g++ pkg-config >/dev/null
+  else
+    echo "setup-pcl: install libpcl-dev pybind11-dev g++ pkg-config for the PCL baselines (their tests skip)" >&2
+    exit 0
+  fi
+fi
+.venv/bin/python -m jsrte.baselines.pcl || echo "setup-pcl: the PCL binding did not build; the PCL baselines are skipped" >&2

@@ -1,0 +1,258 @@
+"""``fit_many``: fit every scan of a folder or list, locally or on Ray; resumable, one failure at a time.
+
+Layout of the output folder ``out``::
+
+    out/<name>/fit.json, shape.ply, shape_canonical.ply, overlay.png   (as ``jsrte fit``)
+    out/summary.csv                                                     (one row per scan)
+
+A scan is done when ``out/<name>/fit.json`` exists (it is written last, atomically): a rerun
+skips it, so an interrupted run loses nothing that finished and fits nothing twice; failed
+scans are tried again. ``summary.csv`` is rewritten atomically after every scan.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import socket
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jsrte.batch.inputs import find_truth, list_scans, result_names
+from jsrte.batch.worker import FitOptions, JobOutcome, ModelBlob, ScanJob, failed_outcome, summary_row
+from jsrte.errors import JsrteError
+from jsrte.fit.outputs import RESULT_NAME
+from jsrte.io import write_bytes_atomic
+
+SUMMARY_NAME = "summary.csv"
+COLUMNS = ("scan", "result", "status", "error", "fscore", "scale", "time_s")
+"""summary.csv: the scan's path, its result folder, ok/failed, the error, F@5% against the truth
+(virtual scans whose JSON names a findable mesh; else empty), the estimated scale, seconds."""
+LOCK_NAME = ".fit-many.lock"
+
+
+@dataclass
+class BatchReport:
+    """What a run did.
+
+    Attributes
+    ----------
+    summary : path of summary.csv
+    rows : one summary row per scan, in the order of the scan list
+    fitted : scans fitted by this run
+    skipped : scans already done before it
+    failed : scans that failed in this run
+    """
+
+    summary: Path
+    rows: list[dict[str, Any]]
+    fitted: int
+    skipped: int
+    failed: int
+
+
+def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair", preset: str = "fast",
+             workers: int | None = None, ray_address: str | None = None, up: np.ndarray | None = None,
+             seed: int = 0, hypotheses: int | None = None, retries: int = 2,
+             progress: bool = True) -> BatchReport:
+    """Fit every scan of ``source`` (a folder, or a ``.txt`` list) into ``out``.
+
+    Parameters
+    ----------
+    model, preset, up, seed, hypotheses : as ``jsrte.fit.fit``, the same for every scan
+    workers : local worker processes (default: all cores); with ``ray_address="local"`` the
+        CPUs of the Ray instance started here; ignored for another Ray cluster
+    ray_address : None (local process pool) or a Ray address (see ``run_ray``)
+    retries : times a scan is sent again after its worker process died
+    """
+    from jsrte.presets import get_preset
+
+    try:
+        get_preset(preset)
+    except KeyError as exc:
+        raise JsrteError(str(exc.args[0])) from None
+    scans = list_scans(source)
+    names = result_names(scans)
+    out = Path(out)
+    workers = workers or os.cpu_count() or 1
+    options = FitOptions(preset=preset, up=None if up is None else tuple(float(x) for x in up), seed=seed,
+                         hypotheses=hypotheses)
+    with _locked(out):
+        rows = {i: row for i, (scan, name) in enumerate(zip(scans, names, strict=True))
+                if (row := _done_row(scan, out / name)) is not None}
+        todo = [i for i in range(len(scans)) if i not in rows]
+        summary = _Summary(out / SUMMARY_NAME, rows)
+        summary.write()
+        counts = {"fitted": 0, "failed": 0}
+        if todo:
+            blob = load_blob(model)
+            bar = _bar(len(scans), len(rows), progress)
+
+            def on_done(outcome: JobOutcome) -> None:
+                if outcome.ok:
+                    _write_result(out / outcome.name, outcome.files)
+                counts["fitted" if outcome.ok else "failed"] += 1
+                summary.add(outcome.index, outcome.row)
+                bar.update(1)
+                bar.set_postfix(failed=counts["failed"])
+
+            jobs = _jobs(todo, scans, names, options, on_done)
+            try:
+                if ray_address is None:
+                    from jsrte.batch.local import run_local
+
+                    run_local(jobs, blob, workers=min(workers, len(todo)), retries=retries, on_done=on_done)
+                else:
+                    from jsrte.batch.ray_backend import run_ray
+
+                    run_ray(jobs, blob, address=ray_address, workers=workers, retries=retries,
+                            on_done=on_done)
+            finally:
+                bar.close()
+    return BatchReport(out / SUMMARY_NAME, summary.ordered(), counts["fitted"], len(scans) - len(todo),
+                       counts["failed"])
+
+
+# -- inputs and outputs -----------------------------------------------------------------------
+
+def load_blob(model: str | Path) -> ModelBlob:
+    """Read the model once; compute its class geometry here rather than in every worker."""
+    from jsrte.fit.api import class_geometry
+    from jsrte.model.checkpoint import file_hash
+    from jsrte.model.registry import resolve_model, resolve_model_path
+
+    path = resolve_model_path(model)
+    loaded = resolve_model(path)
+    geometry = class_geometry(loaded)
+    name = loaded.meta.get("name") or str(model)
+    return ModelBlob(name=str(name), path=str(path), sha256=file_hash(path), data=path.read_bytes(),
+                     geometry={"canonical_height": geometry.height, "canonical_radius": geometry.radius})
+
+
+def make_job(index: int, name: str, scan: Path, options: FitOptions) -> ScanJob:
+    """Read a scan (and its JSON sidecar, and its truth mesh) into a job; JsrteError if unreadable."""
+    if not scan.is_file():
+        raise JsrteError("no such file", scan)
+    try:
+        files = {scan.name: scan.read_bytes()}
+        sidecar = scan.with_suffix(".json")
+        if sidecar.is_file() and sidecar != scan:
+            files[sidecar.name] = sidecar.read_bytes()
+        truth = find_truth(scan)
+        truth_mesh = None if truth is None else (truth.mesh.name, truth.mesh.read_bytes())
+    except OSError as exc:
+        raise JsrteError(f"cannot read ({exc.strerror or exc})", scan) from exc
+    return ScanJob(index=index, name=name, scan=str(scan), files=files, options=options,
+                   truth_mesh=truth_mesh, truth_pose=None if truth is None else truth.scan_from_mesh)
+
+
+def _jobs(todo: list[int], scans: list[Path], names: list[str], options: FitOptions,
+          on_done: Any) -> Iterator[ScanJob]:
+    """Jobs read lazily, as the backend asks for them; an unreadable scan fails right here."""
+    for i in todo:
+        try:
+            yield make_job(i, names[i], scans[i], options)
+        except JsrteError as exc:
+            on_done(failed_outcome(ScanJob(i, names[i], str(scans[i]), {}, options), str(exc)))
+
+
+def _done_row(scan: Path, folder: Path) -> dict[str, Any] | None:
+    """The summary row of a scan fitted by an earlier run (None if not done)."""
+    path = folder / RESULT_NAME
+    if not path.is_file():
+        return None
+    try:
+        result = json.loads(path.read_text())
+        truth = result.get("truth") or {}
+        seconds = result.get("wall_time_s", (result.get("timing_s") or {}).get("total", 0.0))
+        return summary_row(str(scan), folder.name, "ok", fscore=truth.get("fscore"), scale=result["scale"],
+                           seconds=float(seconds))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None  # not a result after all: fit it again
+
+
+def _write_result(folder: Path, files: dict[str, bytes]) -> None:
+    """The worker's files, each atomically, fit.json last (it marks the scan done)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in sorted(files, key=lambda n: n == RESULT_NAME):
+        write_bytes_atomic(folder / Path(name).name, files[name])
+
+
+class _Summary:
+    """summary.csv, rewritten atomically whenever a row is added."""
+
+    def __init__(self, path: Path, rows: dict[int, dict[str, Any]]) -> None:
+        self.path, self.rows = path, dict(rows)
+
+    def add(self, index: int, row: dict[str, Any]) -> None:
+        self.rows[index] = row
+        self.write()
+
+    def ordered(self) -> list[dict[str, Any]]:
+        return [self.rows[i] for i in sorted(self.rows)]
+
+    def write(self) -> None:
+        text = io.StringIO()
+        writer = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(self.ordered())
+        write_bytes_atomic(self.path, text.getvalue().encode())
+
+
+def _bar(total: int, initial: int, progress: bool) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, desc="fitting", unit="scan", disable=not progress)
+
+
+@contextmanager
+def _locked(out: Path) -> Iterator[None]:
+    """Refuse a second fit-many writing into the same folder at the same time."""
+    out.mkdir(parents=True, exist_ok=True)
+    lock = out / LOCK_NAME
+    me = f"{socket.gethostname()} {os.getpid()}"
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            break
+        except FileExistsError:
+            if not _stale(lock):
+                raise JsrteError(f"another fit-many is writing here ({_owner(lock)}); if it is gone, "
+                                 f"delete {LOCK_NAME}", out) from None
+            lock.unlink(missing_ok=True)
+    else:
+        raise JsrteError(f"cannot take {LOCK_NAME}", out)
+    with os.fdopen(fd, "w") as f:
+        f.write(me + "\n")
+    try:
+        yield
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _owner(lock: Path) -> str:
+    try:
+        return "host and process " + lock.read_text().strip()
+    except OSError:
+        return "unknown process"
+
+
+def _stale(lock: Path) -> bool:
+    """A lock gone, or left by a process of this host that no longer runs."""
+    try:
+        host, pid = lock.read_text().split()
+        if host != socket.gethostname():
+            return False
+        os.kill(int(pid), 0)
+    except (ProcessLookupError, FileNotFoundError):
+        return True
+    except (OSError, ValueError):
+        return False
+    return False

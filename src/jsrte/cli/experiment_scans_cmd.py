@@ -1,0 +1,43 @@
+"""``jsrte experiment scans``: the paper's Table 2 on virtual (or real) scans."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from jsrte.cli.common import set_threads
+from jsrte.cli.experiment_cmd import experiment_app, split_names
+from jsrte.errors import JsrteError
+
+
+@experiment_app.command("scans")
+def scans_command(
+    out: Path = typer.Option(..., "--out", help="Output folder (results.csv, table.md, figures)."),
+    category: str = typer.Option("chair", help="Shape class of the held-out shapes."),
+    model: str = typer.Option(None, help="Model file or shipped name (default: the category's shipped model)."),
+    scale: str = typer.Option("quick", help="quick (4 scans) or paper (58 scans)."),
+    scans: int = typer.Option(None, help="Number of virtual scans (overrides --scale)."),
+    folder: Path = typer.Option(None, help="Use the real scans in this folder instead (no truth)."),
+    methods: str = typer.Option("jsrte,harris3d-shot,ourcvfh-icp,pointnet-icp,fpfh-ransac-icp",
+                                help="Methods, comma-separated."),
+    preset: str = typer.Option("fast", help="Fit preset for jsrte."),
+    seed: int = typer.Option(0, help="Random seed (scan poses)."),
+    overwrite: bool = typer.Option(False, help="Replace results already in --out."),
+) -> None:
+    """Every method on every scan; F@5% against the true shape and the scan, times, figures."""
+    from jsrte.baselines import BASELINE_NAMES
+    from jsrte.experiments.scans import SCALES, folder_cases, run_scan_experiment, virtual_cases
+    from jsrte.io import output_dir
+    from jsrte.model.registry import resolve_model
+
+    chosen = split_names(methods, ("jsrte",) + BASELINE_NAMES, "method")
+    if scale not in SCALES:
+        raise JsrteError(f"unknown scale {scale!r} (known: {', '.join(SCALES)})")
+    loaded = resolve_model(model or category)
+    set_threads(None)
+    with output_dir(out, overwrite=overwrite, marker="table.md") as folder_out:
+        cases = (folder_cases(folder) if folder is not None
+                 else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed))
+        run_scan_experiment(cases, list(chosen), folder_out, model=loaded, preset=preset, seed=seed)
+    typer.echo((out / "table.md").read_text())

@@ -1,0 +1,44 @@
+"""``jsrte fit-many``: fit every scan of a folder (or list) locally or on a Ray cluster."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from jsrte.cli import app
+from jsrte.cli.fit_cmd import check_preset, parse_vector
+from jsrte.presets import DEFAULT_PRESET, PRESETS
+
+
+@app.command("fit-many")
+def fit_many_command(
+    source: Path = typer.Argument(..., help="Folder of scans (PLY/PCD/XYZ/PTS, OBJ/OFF/STL/GLB, NPZ) or a "
+                                            ".txt list of scan paths, one a line."),
+    out: Path = typer.Option(..., "--out", help="Output folder: one result folder per scan, summary.csv."),
+    model: str = typer.Option("chair", help="Shipped model name or model file."),
+    preset: str = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)}."),
+    workers: int = typer.Option(0, help="Parallel fits on this machine (0: all cores); with --ray local, "
+                                        "the CPUs of that Ray instance."),
+    ray: str = typer.Option(None, "--ray", help="Run on the Ray cluster at this address (auto, HOST:6379, "
+                                                "ray://HOST:10001) or 'local' (start one here)."),
+    up: str = typer.Option(None, help="Known up axis X,Y,Z for every scan (default: each floor's normal)."),
+    seed: int = typer.Option(0, help="Random seed (the same for every scan, as jsrte fit)."),
+    hypotheses: int = typer.Option(None, help="Number of θ starts (default: the preset's grid)."),
+    retries: int = typer.Option(2, help="Times a scan is sent again after its worker process died."),
+    progress: bool = typer.Option(True, help="Show a progress bar."),
+) -> None:
+    """Fit every scan; skip those already done in --out; a failed scan is recorded and the rest go on.
+
+    Exit status 0 when every scan is done, 1 when some failed (see summary.csv), 2 on bad input.
+    """
+    from jsrte.batch import fit_many
+
+    check_preset(preset)
+    report = fit_many(source, out=out, model=model, preset=preset, workers=workers or None,
+                      ray_address=ray, up=parse_vector(up), seed=seed, hypotheses=hypotheses, retries=retries,
+                      progress=progress)
+    typer.echo(f"{len(report.rows)} scans: {report.fitted} fitted now, {report.skipped} done before, "
+               f"{report.failed} failed; wrote {report.summary}")
+    if report.failed:
+        raise typer.Exit(1)

@@ -15,7 +15,7 @@ demo: setup
 	$(BIN)/jsrte demo
 
 test: setup
-	@bash scripts/setup-pcl.sh
+	@bash scripts/setup-test-extras.sh
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/python -m pytest -q
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -71,24 +72,30 @@ def bench_fit_many(work: Path, scans: int, workers: list[int], preset: str, hypo
     make_scans(folder, scans)
     make_model(model)
     print(f"\n### fit-many: {scans} scans, preset {preset}, hypotheses {hypotheses or 'preset grid'}\n")
-    print("| workers | wall (s) | scans / minute | median fit (s) |")
-    print("|---|---|---|---|")
+    print("| workers | wall (s) | scans / minute | after start-up, scans / minute | median fit (s) | "
+          "worker CPU (s) | load average |")
+    print("|---|---|---|---|---|---|---|")
     for w in workers:
         out = work / f"fits-{w}"
         shutil.rmtree(out, ignore_errors=True)
+        cpu = _children_cpu()
         started = time.perf_counter()
         report = fit_many(folder, out=out, model=model, preset=preset, hypotheses=hypotheses, workers=w,
                           progress=False)
         wall = time.perf_counter() - started
+        cpu = _children_cpu() - cpu
         assert report.failed == 0, report.rows
         median = statistics.median(float(r["time_s"]) for r in report.rows)
-        print(f"| {w} | {wall:.1f} | {60 * scans / wall:.1f} | {median:.2f} |", flush=True)
+        done = sorted((out / r["result"] / "fit.json").stat().st_mtime for r in report.rows)
+        steady = 60 * (len(done) - w) / max(done[-1] - done[w - 1], 1e-9) if len(done) > w else float("nan")
+        print(f"| {w} | {wall:.1f} | {60 * scans / wall:.1f} | {steady:.1f} | {median:.2f} | {cpu:.1f} | "
+              f"{os.getloadavg()[0]:.1f} |", flush=True)
 
 
 def bench_torchrun(work: Path, procs: list[int], steps: int) -> None:
     print(f"\n### jsrte train, tiny setting ({steps} steps, global batch 4 shapes x 256 points)\n")
-    print("| launch | processes | steps / s |")
-    print("|---|---|---|")
+    print("| launch | processes | steps / s | CPU (s) | load average |")
+    print("|---|---|---|---|---|")
     env = dict(os.environ, OMP_NUM_THREADS="1")
     runs = [("python -m jsrte.cli", 1, [sys.executable, "-m", "jsrte.cli"])]
     runs += [("torchrun", n, [sys.executable, "-m", "torch.distributed.run", "--standalone",
@@ -96,10 +103,18 @@ def bench_torchrun(work: Path, procs: list[int], steps: int) -> None:
     for label, n, launcher in runs:
         out = work / f"train-{label.split()[0]}-{n}"
         shutil.rmtree(out, ignore_errors=True)
+        cpu = _children_cpu()
         subprocess.run(launcher + ["train", *TRAIN_ARGS, "--steps", str(steps), "--checkpoint-every",
                                    str(steps), "--out", str(out)], check=True, env=env, capture_output=True)
+        cpu = _children_cpu() - cpu
         seconds = json.loads((out / "model.json").read_text())["training"]["seconds"]
-        print(f"| {label} | {n} | {steps / seconds:.1f} |", flush=True)
+        print(f"| {label} | {n} | {steps / seconds:.1f} | {cpu:.1f} | {os.getloadavg()[0]:.1f} |", flush=True)
+
+
+def _children_cpu() -> float:
+    """User + system seconds of this process's finished children (the workers, the trainers)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def main() -> None:

@@ -9,9 +9,9 @@ from math import pi
 import numpy as np
 import pytest
 import torch
-from analytic import LShapeDecoder
 from scipy import stats
 
+from analytic import LShapeDecoder
 from jsrte.experiments.plots import binned_counts
 from jsrte.experiments.synthetic import (
     Pose,

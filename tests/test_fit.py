@@ -5,8 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from analytic import LShapeDecoder
 
+from analytic import LShapeDecoder
 from jsrte.fit.api import fit_query
 from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
 from jsrte.fit.optimize import SdfQuery, optimize
@@ -63,10 +63,7 @@ def test_known_axis_recovers_transform_from_theta_grid(lshape, lshape_mesh):
 
 def test_unknown_axis_recovers_transform_from_nearby_start(lshape, lshape_mesh):
     rng = np.random.default_rng(1)
-    truth, up = tilted_truth(theta=-0.7)
-    query = make_query(lshape_mesh, truth, None, rng)
     # the paper's synthetic setting: R = R(psi, rho, theta), axis unknown, start near the truth
-    axis_angle = torch.tensor(0.0)
     psi, rho = spherical_from_axis(np.array([0.2, 0.7, 0.68]))
     true_r = axis_angle_matrix(np.array([np.sin(psi) * np.cos(rho), np.sin(psi) * np.sin(rho), np.cos(psi)]), 0.9)
     truth = Sim3(1.3, true_r, np.array([0.5, 1.0, -2.0]))
@@ -77,7 +74,6 @@ def test_unknown_axis_recovers_transform_from_nearby_start(lshape, lshape_mesh):
     assert result.transform.s == pytest.approx(truth.s, rel=0.03)
     assert rotation_angle_deg(result.transform.R, truth.R) < 3.0
     assert np.linalg.norm(result.transform.t - truth.t) < 0.05
-    del axis_angle
 
 
 def test_fixed_parameters_do_not_move_and_scale_stays_in_bounds(lshape, lshape_mesh):

@@ -112,7 +112,7 @@ def test_a_rerun_fits_only_what_is_left(first_run, model_file, scan_pool):
     folder, out, _ = first_run
     stamps = {stem: (out / stem / "fit.json").stat().st_mtime_ns for stem in ("chair_0", "chair_1")}
     _copy_scan(scan_pool[0][2], folder)  # a scan arrives; the corrupt one is still there
-    second = fit_many(folder, out=out, model=model_file, workers=2, **FAST)
+    second = fit_many(folder, out=out, model=model_file, workers=1, **FAST)
     assert (second.fitted, second.skipped, second.failed) == (1, 2, 1)
     assert {stem: (out / stem / "fit.json").stat().st_mtime_ns for stem in stamps} == stamps  # not refitted
     rows = _summary(out)
@@ -155,6 +155,15 @@ def test_fit_many_without_ray_installed_says_how_to_get_it(model_file, scan_pool
     monkeypatch.setattr(builtins, "__import__", no_ray)
     with pytest.raises(JsrteError, match=r"jsrte\[ray\]"):
         fit_many(scan_pool[0][0].parent, out=tmp_path / "out", model=model_file, ray_address="auto", **FAST)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_bad_model_stops_the_run_before_anything_is_written(scan_pool, tmp_path):
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"not a model")
+    with pytest.raises(JsrteError, match="bad.safetensors"):
+        fit_many(scan_pool[0][0].parent, out=tmp_path / "out", model=bad, **FAST)
+    assert not (tmp_path / "out").exists()
 
 
 def test_list_files_names_and_truth(tmp_path, scan_pool):

@@ -58,7 +58,8 @@ def test_tiny_decoder_learns_sphere_and_box(analytic_shapes, tmp_path):
         norm_truth.vertices = (truth.vertices - samples[i].centre) / samples[i].scale
         mesh = decode_mesh(model.decoder, model.codes[i], resolution=64).mesh
         assert mesh is not None
-        f = fscore(mesh, norm_truth, rng=np.random.default_rng(0))
+        # 20k points: with 3000, two samplings of one sphere already score only ~0.85 at 5%
+        f = fscore(mesh, norm_truth, n_points=20_000, rng=np.random.default_rng(0))
         assert f.fscore > 0.9, f"shape {i}: {f}"
 
 

@@ -78,12 +78,19 @@ def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair"
         get_preset(preset)
     except KeyError as exc:
         raise JsrteError(str(exc.args[0])) from None
+    if ray_address is not None:
+        from jsrte.batch.ray_backend import import_ray
+
+        import_ray()  # before anything is written: say how to install it
     scans = list_scans(source)
     names = result_names(scans)
     out = Path(out)
     workers = workers or os.cpu_count() or 1
     options = FitOptions(preset=preset, up=None if up is None else tuple(float(x) for x in up), seed=seed,
                          hypotheses=hypotheses)
+    blob = None
+    if any(not (out / name / RESULT_NAME).is_file() for name in names):
+        blob = load_blob(model)  # a bad model stops the run before anything is written
     with _locked(out):
         rows = {i: row for i, (scan, name) in enumerate(zip(scans, names, strict=True))
                 if (row := _done_row(scan, out / name)) is not None}
@@ -92,7 +99,7 @@ def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair"
         summary.write()
         counts = {"fitted": 0, "failed": 0}
         if todo:
-            blob = load_blob(model)
+            blob = blob or load_blob(model)
             bar = _bar(len(scans), len(rows), progress)
 
             def on_done(outcome: JobOutcome) -> None:

@@ -112,7 +112,7 @@ def synthetic_command(
             typer.echo(f"{row['scenario']:12s} {row['category']:6s} median F@5% {row['median_fscore']:.3f}  "
                        f"mean {row['mean_fscore']:.3f}  >= 0.8: {row['fraction_ge_0.8']:.0%}")
     for category, why in report.skipped.items():
-        typer.echo(f"skipped {category}: {why}")
+        typer.echo(f"skipped {category}: {why} (none shipped; pass --model PATH with this one category)")
     typer.echo(f"wrote {', '.join(str(p) for p in report.files)}")
 
 

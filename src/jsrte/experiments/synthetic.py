@@ -350,7 +350,7 @@ def run_synthetic(config: SyntheticConfig, models: dict[str, DeepSdfModel | None
     for category in config.categories:
         model = models.get(category)
         if model is None:
-            report.skipped[category] = "no model (no shipped model of this name; pass --model PATH)"
+            report.skipped[category] = "no model"
             log(f"{category}: skipped, no model")
             continue
         report.models[category] = {"name": model.name, "sha256": model.meta.get("sha256"),
@@ -497,14 +497,15 @@ def summary_markdown(report: SyntheticReport, config: SyntheticConfig) -> str:
         lines.append(f"- Model for {category}: `{info['name']}` ({info.get('path')}, sha256 "
                      f"{str(info.get('sha256'))[:16]}…)")
     for category, why in report.skipped.items():
-        lines.append(f"- **{category}: skipped** — {why}")
+        lines.append(f"- **{category}: skipped** — {why} (none shipped under this name; run it alone with "
+                     f"`--categories {category} --model PATH`)")
     lines += ["", "| scenario | class | shapes | runs | median F@5% | mean F@5% | F ≥ 0.8 | shapes with "
               "median ≥ 0.8 | median rot. err. (°) | median scale err. | paper |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report.summary:
         if r["status"] != "ok":
-            lines.append(f"| {r['scenario']} | {r['category']} | – | – | – | – | – | – | – | – | "
-                         f"{r['paper']} ({r['status']}) |")
+            lines.append(f"| {r['scenario']} | {r['category']} | {r['status']} | – | – | – | – | – | – | – "
+                         f"| {r['paper']} |")
             continue
         lines.append(f"| {r['scenario']} | {r['category']} | {r['shapes']} | {r['runs']} "
                      f"| {r['median_fscore']:.3f} | {r['mean_fscore']:.3f} | {r['fraction_ge_0.8']:.0%} "

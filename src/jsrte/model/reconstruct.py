@@ -39,8 +39,8 @@ def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.ra
     return out.batch.latent[0].detach().to(torch.float32).numpy(), norm
 
 
-def reconstruct_mesh(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator,
-                     resolution: int = 128, settings: FitSettings = LATENT_ONLY) -> tuple[trimesh.Trimesh | None, np.ndarray]:
+def reconstruct_mesh(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator, resolution: int = 128,
+                     settings: FitSettings = LATENT_ONLY) -> tuple[trimesh.Trimesh | None, np.ndarray]:
     """Reconstructed surface in the input's own frame (or None), and the latent code."""
     latent, norm = reconstruct_latent(model, mesh, rng=rng, settings=settings)
     out = decode_mesh(model.decoder, latent, resolution=resolution).mesh

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Install PCL (Debian libpcl-dev) and build the small pybind11 binding of the paper's PCL
+# Test extras: PCL (Debian libpcl-dev) and build the small pybind11 binding of the paper's PCL
 # baselines (Harris3D + SHOT, OUR-CVFH) into the cache, when root; otherwise say what to do.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,3 +12,5 @@ if [ ! -f /usr/include/pcl-1.13/pcl/features/shot.h ]; then
   fi
 fi
 .venv/bin/python -m jsrte.baselines.pcl || echo "setup-pcl: the PCL binding did not build; the PCL baselines are skipped" >&2
+# Ray (for `jsrte fit-many --ray` and its local test); optional for users: pip install -e ".[ray]"
+.venv/bin/python -m pip install -q -e ".[ray]" || echo "setup-pcl: Ray did not install; its test is skipped" >&2

@@ -36,7 +36,7 @@ def test_densify_rebuilds_the_same_surface_with_about_the_target_faces():
 def test_quadric_decimation_and_vertex_clustering():
     sphere = trimesh.creation.icosphere(subdivisions=4)  # 5120 faces, radius 1
     qe = quadric_decimation(sphere, 100)
-    assert 25 <= len(qe.faces) <= 5120 // 100
+    assert 5120 // 100 - 2 <= len(qe.faces) <= 5120 // 100  # an edge collapse removes two faces
     assert np.allclose(np.linalg.norm(qe.vertices, axis=1), 1.0, atol=0.1)
     assert len(quadric_decimation(sphere, 100_000).faces) <= 4
     coarse, fine = vertex_clustering(sphere, 0.2), vertex_clustering(sphere, 0.1)
@@ -124,8 +124,9 @@ def test_tiny_run_writes_table3_codes_meshes_and_plot(tmp_path, tiny_model_path)
         path = tmp_path / rows[label]["file"]
         assert path.suffix == ".ply" and path.stat().st_size == int(rows[label]["size_bytes"])
         assert len(trimesh.load(path, process=False).faces) == int(rows[label]["faces"])
-    # decimation keeps each part's topology, so a small original stops above 1/100 of its faces
+    # an edge collapse may not split a part: a small original stops above 1/100 of its faces
     assert int(rows["QE-1000"]["faces"]) <= int(rows["QE-100"]["faces"]) < int(rows["Original"]["faces"]) // 10
+    assert float(rows["Fit"]["rotation_error_deg"]) >= 0.0 and float(rows["Fit"]["scale_error_rel"]) >= 0.0
     assert 2000 < int(rows["Original"]["faces"]) < 6000  # densified from a few hundred faces
     table = {r["method"]: r for r in read_csv(tmp_path / "table3.csv")}
     assert float(table["QE-100"]["paper_size_kb"]) == PAPER_TABLE3["QE-100"]["size_kb"]

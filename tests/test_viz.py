@@ -70,3 +70,31 @@ def test_panels_row(tmp_path, scene):
     assert image.shape[1] == 450
     red, gray = pixel_kinds(out)
     assert red > 200 and gray > 1000
+
+
+def test_contact_sheet_then_overlay_share_one_gl_context(tmp_path, scene):
+    """A contact sheet must not tear down the GL display the overlays render with (a CI failure)."""
+    from jsrte.shapes.sheet import render_sheet
+
+    mesh, points = scene
+    for name in ("before.png", "after.png"):
+        viz.render_overlay(mesh, points, tmp_path / name, views=1, size=(160, 120))
+        render_sheet([mesh], ["box"], tmp_path / "sheet.png")
+        red, gray = pixel_kinds(tmp_path / name)
+        assert red > 100 and gray > 1000
+
+
+def test_auto_backend_falls_back_when_gl_drawing_fails(tmp_path, scene, monkeypatch):
+    mesh, points = scene
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("eglMakeCurrent failed")
+
+    monkeypatch.setattr(viz, "_render_pyrender", broken)
+    monkeypatch.setattr(viz, "_PYRENDER", {"ok": True, "renderer": object()})
+    out = tmp_path / "overlay.png"
+    with pytest.warns(RuntimeWarning, match="unavailable"):
+        viz.render_overlay(mesh, points, out, views=1, size=(160, 120))
+    red, gray = pixel_kinds(out)
+    assert red > 100 and gray > 1000
+    assert viz._PYRENDER["ok"] is False  # monkeypatch puts the process's real state back

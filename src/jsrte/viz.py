@@ -222,30 +222,48 @@ def _render(mesh: trimesh.Trimesh | None, points: np.ndarray | None, camera: Cam
     """One view (height, width, 3) uint8."""
     if mesh is not None and len(mesh.faces) == 0:
         mesh = None
-    if backend in ("auto", "pyrender") and _pyrender_usable(strict=backend == "pyrender"):
-        return _render_pyrender(mesh, points, camera, size)
+    if backend in ("auto", "pyrender") and shared_offscreen_renderer(strict=backend == "pyrender") is not None:
+        try:
+            return _render_pyrender(mesh, points, camera, size)
+        except Exception as exc:  # a GL context that broke after the probe: fall back for good
+            if backend == "pyrender":
+                raise
+            _mark_pyrender_unusable(exc)
     return _render_matplotlib(mesh, points, camera, size)
 
 
 _PYRENDER: dict[str, object] = {}
 
 
-def _pyrender_usable(*, strict: bool) -> bool:
-    """Whether an offscreen pyrender context can be made (tried once per process)."""
+def shared_offscreen_renderer(*, strict: bool = False) -> object | None:
+    """The process's one pyrender ``OffscreenRenderer``, or None where offscreen GL is unusable.
+
+    Made once and never deleted: pyrender's ``delete()`` terminates the EGL display, which every
+    renderer of the process shares, so a second renderer deleted would break this one. Callers
+    set ``viewport_width``/``viewport_height`` before rendering. The probe renders a tiny scene,
+    since a context can be created on systems where drawing then fails. With ``strict``, an
+    unusable renderer raises RuntimeError instead of returning None.
+    """
     if "ok" not in _PYRENDER:
         try:
             import pyrender
 
-            _PYRENDER["renderer"] = pyrender.OffscreenRenderer(64, 64)
-            _PYRENDER["ok"] = True
+            renderer = pyrender.OffscreenRenderer(16, 16)
+            probe = pyrender.Scene()
+            probe.add(pyrender.PerspectiveCamera(yfov=YFOV))
+            renderer.render(probe)
+            _PYRENDER["renderer"], _PYRENDER["ok"] = renderer, True
         except Exception as exc:  # no EGL / no GL driver: many exception types
-            _PYRENDER["ok"] = False
-            _PYRENDER["error"] = f"{type(exc).__name__}: {exc}"
-            warnings.warn(f"pyrender offscreen rendering unavailable ({_PYRENDER['error']}); "
-                          "using matplotlib", RuntimeWarning, stacklevel=3)
+            _mark_pyrender_unusable(exc)
     if strict and not _PYRENDER["ok"]:
         raise RuntimeError(f"pyrender offscreen rendering unavailable: {_PYRENDER['error']}")
-    return bool(_PYRENDER["ok"])
+    return _PYRENDER["renderer"] if _PYRENDER["ok"] else None
+
+
+def _mark_pyrender_unusable(exc: Exception) -> None:
+    _PYRENDER.update(ok=False, renderer=None, error=f"{type(exc).__name__}: {exc}")
+    warnings.warn(f"pyrender offscreen rendering unavailable ({_PYRENDER['error']}); using matplotlib",
+                  RuntimeWarning, stacklevel=3)
 
 
 def _render_pyrender(mesh: trimesh.Trimesh | None, points: np.ndarray | None, camera: Camera,
@@ -270,7 +288,7 @@ def _render_pyrender(mesh: trimesh.Trimesh | None, points: np.ndarray | None, ca
               pose=camera.pose)
     scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=1.2), pose=camera.pose)
     scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=2.0), pose=_key_light_pose(camera))
-    renderer = _PYRENDER["renderer"]
+    renderer = shared_offscreen_renderer(strict=True)
     renderer.viewport_width, renderer.viewport_height = width, height
     renderer.point_size = max(2.0, round(min(width, height) / 160.0))
     colour, _ = renderer.render(scene, flags=pyrender.RenderFlags.SKIP_CULL_FACES)

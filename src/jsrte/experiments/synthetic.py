@@ -294,18 +294,21 @@ class SyntheticReport:
     seconds: float = 0.0
 
 
+def _category_number(category: str) -> int:
+    return CATEGORIES.index(category) if category in CATEGORIES else len(CATEGORIES)
+
+
 def _case_rng(seed: int, category: str, index: int) -> np.random.Generator:
     """The same truth and query for a shape in every scenario (scenarios compare like for like)."""
-    return np.random.default_rng([seed, CATEGORIES.index(category) if category in CATEGORIES else 99, index])
+    return np.random.default_rng([seed, _category_number(category), index])
 
 
 def _init_rng(seed: int, scenario: str, category: str, index: int) -> np.random.Generator:
-    return np.random.default_rng([seed, 1 + list(SCENARIOS).index(scenario),
-                                  CATEGORIES.index(category) if category in CATEGORIES else 99, index])
+    return np.random.default_rng([seed, 1 + list(SCENARIOS).index(scenario), _category_number(category), index])
 
 
-def run_shape(model: DeepSdfModel, case: SyntheticCase, scenario: SyntheticScenario, config: SyntheticConfig,
-              ) -> list[dict]:
+def run_shape(model: DeepSdfModel, case: SyntheticCase, scenario: SyntheticScenario,
+              config: SyntheticConfig) -> list[dict]:
     """Fit one case from ``config.inits`` initializations of ``scenario``: one row per run."""
     rng = _init_rng(config.seed, scenario.name, case.category, case.index)
     deltas = sample_deltas(scenario, config.inits, rng=rng)

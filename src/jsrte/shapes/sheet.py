@@ -7,7 +7,6 @@ instead (slower, and its per-face depth sorting shows artefacts on large faces).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -80,14 +79,13 @@ def draw_mesh_matplotlib(ax: object, mesh: trimesh.Trimesh) -> None:
 
 
 def _pyrender_renderer() -> object | None:
-    """An offscreen renderer, or None where no (EGL) OpenGL context can be made."""
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    try:
-        import pyrender
+    """The shared offscreen renderer sized for tiles, or None where no (EGL) context can be made."""
+    from jsrte.viz import shared_offscreen_renderer
 
-        return pyrender.OffscreenRenderer(TILE_PX, TILE_PX)
-    except Exception:  # no GPU/EGL/OSMesa: many exception types
-        return None
+    renderer = shared_offscreen_renderer()
+    if renderer is not None:
+        renderer.viewport_width, renderer.viewport_height = TILE_PX, TILE_PX
+    return renderer
 
 
 def render_sheet(meshes: Sequence[trimesh.Trimesh], titles: Sequence[str], path: str | Path,
@@ -118,6 +116,4 @@ def render_sheet(meshes: Sequence[trimesh.Trimesh], titles: Sequence[str], path:
         write_with(path, lambda tmp: fig.savefig(tmp, format="png"))
     finally:
         plt.close(fig)
-        if renderer is not None:
-            renderer.delete()
     return Path(path)

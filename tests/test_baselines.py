@@ -155,27 +155,7 @@ def test_a_five_point_query_fails_clearly(name, database, tmp_path):
         get_baseline(name, **options).fit(points, points, UP, database, rng=np.random.default_rng(0))
 
 
-# --- CLI -------------------------------------------------------------------------------------------
-
-
-@pytest.fixture
-def run_cli(monkeypatch, capsys):
-    """Run ``jsrte ARGS`` in this process: (exit status, stdout, stderr)."""
-    import sys
-
-    from jsrte.cli import main
-
-    def run(args: list[str]) -> tuple[int, str, str]:
-        monkeypatch.setattr(sys, "argv", ["jsrte", *args])
-        try:
-            main()
-            code = 0
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-        captured = capsys.readouterr()
-        return code, captured.out, captured.err
-
-    return run
+# --- CLI (run_cli: tests/conftest.py) ------------------------------------------------------------
 
 
 def test_cli_help_lists_the_four_baselines():

@@ -112,3 +112,25 @@ def test_hypotheses_are_one_batch_not_a_loop(lshape):
     batch = HypothesisBatch(inits, 4, latent_init_std=0.01)
     assert batch.to_canonical(torch.zeros(5, 3, dtype=torch.float64)).shape == (12, 5, 3)
     assert batch.latent.shape == (12, 4)
+
+
+def test_refine_only_samples_wait_until_the_hypotheses_are_pruned(lshape, lshape_mesh):
+    """Line-of-sight samples (the query's last ``n_refine_only``) take no part in deciding which
+    yaw hypotheses survive: up to the pruning, a fit with them is the fit without them."""
+    truth, up = tilted_truth(0.8)
+    query = make_query(lshape_mesh, truth, up, np.random.default_rng(4))
+    extra = truth.apply(np.random.default_rng(5).uniform(-0.4, 0.4, size=(3000, 3)))
+    misleading = np.full(len(extra), -1.0)  # "inside" everywhere: would change every hypothesis
+    settings = replace(SETTINGS, iterations=SETTINGS.prune_after)
+    inits = initial_hypotheses(query, ClassGeometry(1.5, 0.95), settings, n_hypotheses=4)
+
+    def run(n_refine_only: int) -> np.ndarray:
+        with_extra = replace(query, points=np.concatenate([query.points, extra]),
+                             sdf=np.concatenate([query.sdf, misleading]), n_refine_only=n_refine_only)
+        result = optimize(lshape.decoder, with_extra if n_refine_only >= 0 else query, inits, settings,
+                          generator=torch.Generator().manual_seed(0))
+        return torch.cat([p.detach().flatten() for p in result.batch.parameters()]).numpy()
+
+    without = run(-1)
+    assert np.array_equal(run(len(extra)), without)
+    assert not np.allclose(run(0), without)  # used from the start, they do change the fit

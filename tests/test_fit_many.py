@@ -207,3 +207,33 @@ def test_a_second_run_on_the_same_output_is_refused(tmp_path, scan_pool):
     (tmp_path / LOCK_NAME).write_text(f"{socket.gethostname()} 999999999\n")  # its process is gone
     with _locked(tmp_path):
         pass
+
+
+def test_cli_fit_end_to_end_with_viewpoints(model_file, scan_pool, tmp_path, run_cli):
+    """``jsrte fit`` on a scan: the files, ``--line-of-sight`` samples from the sidecar's cameras or
+    from ``--viewpoint`` (none without the flag), and one-line refusals of a bad viewpoint and of an
+    existing result."""
+    scan = scan_pool[0][0]
+    common = ["fit", str(scan), "--model", str(model_file), "--preset", "smoke", "--hypotheses", "2",
+              "--no-progress", "--threads", "1", "--line-of-sight"]
+    out = tmp_path / "sidecar"
+    code, stdout, err = run_cli([*common, "--out", str(out)])
+    assert code == 0, err
+    result = json.loads((out / "fit.json").read_text())
+    assert (out / "overlay.png").is_file()
+    assert (out / "shape.ply").is_file() != result["empty_surface"]  # a 30-step model may decode empty
+    assert result["query"]["ray_freespace_samples"] > 1000
+    cameras = json.loads(scan.with_suffix(".json").read_text())["cameras"]
+    one = ",".join(str(v) for v in np.asarray(cameras[0], float).reshape(-1)[:3])
+    out = tmp_path / "given"
+    code, _, err = run_cli([*common, "--out", str(out), "--viewpoint", one])
+    assert code == 0, err
+    assert json.loads((out / "fit.json").read_text())["query"]["ray_freespace_samples"] > 1000
+    code, _, err = run_cli([*common, "--out", str(tmp_path / "bad"), "--viewpoint", "1,2"])
+    assert code == 2 and "--viewpoint" in err and not (tmp_path / "bad").exists()
+    code, _, err = run_cli([*common, "--out", str(out)])
+    assert code == 2 and "--overwrite" in err
+    out = tmp_path / "default"
+    code, _, err = run_cli([*common[:-1], "--out", str(out)])
+    assert code == 0, err
+    assert json.loads((out / "fit.json").read_text())["query"]["ray_freespace_samples"] == 0  # the paper's query

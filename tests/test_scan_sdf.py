@@ -10,7 +10,7 @@ from jsrte.presets import ScanSdf
 from jsrte.scans.io import ScanCloud
 from jsrte.scans.preprocess import prepare_scan
 from jsrte.scans.scanner import ScannerSettings, scan_mesh
-from jsrte.sdf.from_scan import scan_sdf_samples
+from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples
 
 RADIUS = 0.4
 SMALL = ScanSdf(n_freespace=4000)
@@ -109,3 +109,43 @@ def test_samples_from_a_prepared_scan_agree_with_the_true_sdf():
     assert np.mean(np.sign(sdf[:n]) == np.sign(exact[:n])) > 0.9  # outside, 1 cm out
     assert np.mean(np.sign(sdf[n:2 * n]) == np.sign(exact[n:2 * n])) > 0.9  # inside
     assert np.mean(np.abs(sdf[2 * n:] - exact[2 * n:]) < 0.03) > 0.95  # freespace
+
+
+def visible_post_points(centre_x: float, camera: np.ndarray, n: int, rng) -> np.ndarray:
+    """Points on the camera-facing half of a vertical post (radius 0.03 m, height 0.5 m)."""
+    angle = rng.uniform(0, 2 * np.pi, n)
+    around = np.column_stack([np.cos(angle), np.zeros(n), np.sin(angle)])
+    points = np.array([centre_x, 0.0, 0.0]) + 0.03 * around + np.outer(rng.uniform(0, 0.5, n), [0, 1, 0])
+    facing = np.einsum("ij,ij->i", around, camera - points) > 0
+    return points[facing]
+
+
+def test_ray_freespace_fills_the_gap_between_posts_and_never_enters_them():
+    """Two posts 0.4 m apart on a floor, seen from the front: the lines of sight to the floor
+    between them are free, so samples lie in the gap with SDF = distance to the nearest post."""
+    rng = np.random.default_rng(3)
+    camera = np.array([0.0, 0.6, 1.5])
+    posts = np.concatenate([visible_post_points(x, camera, 4000, rng) for x in (-0.2, 0.2)])
+    floor = np.column_stack([rng.uniform(-1, 1, 20_000), np.zeros(20_000), rng.uniform(-1, 0.3, 20_000)])
+    settings = ScanSdf(n_ray_freespace=5000)
+    xyz, sdf = ray_freespace_samples(posts, np.concatenate([posts, floor]), camera[None], rng=rng,
+                                     settings=settings)
+    assert xyz.dtype == np.float32 and len(xyz) == len(sdf) > 2000
+    xyz = xyz.astype(np.float64)
+    to_axis = np.minimum(np.hypot(xyz[:, 0] + 0.2, xyz[:, 2]), np.hypot(xyz[:, 0] - 0.2, xyz[:, 2]))
+    assert to_axis.min() > 0.03  # never inside a post (rays may graze the unseen side)
+    assert np.all(sdf >= settings.ray_margin_m)
+    assert np.all(sdf >= to_axis - 0.03 - 1e-6)  # nearest post point is no closer than the post
+    between = (np.abs(xyz[:, 0]) < 0.12) & (xyz[:, 1] < 0.4) & (np.abs(xyz[:, 2]) < 0.15)
+    assert between.sum() > 50  # the gap between the posts got free-space evidence
+    centre = (posts.min(0) + posts.max(0)) / 2
+    radius = np.linalg.norm(posts - centre, axis=1).max() * settings.ray_region_factor
+    assert np.linalg.norm(xyz - centre, axis=1).max() <= radius + 1e-6
+
+
+def test_ray_freespace_off_or_without_viewpoints_gives_nothing():
+    points, _ = sphere(500)
+    cases = ((ScanSdf(n_ray_freespace=0), np.zeros((1, 3))), (ScanSdf(n_ray_freespace=1000), np.zeros((0, 3))))
+    for settings, views in cases:
+        xyz, sdf = ray_freespace_samples(points, points, views, rng=np.random.default_rng(0), settings=settings)
+        assert xyz.shape == (0, 3) and sdf.shape == (0,)

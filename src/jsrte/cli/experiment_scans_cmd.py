@@ -24,6 +24,7 @@ def scans_command(
     preset: str = typer.Option("fast", help="Fit preset for jsrte."),
     seed: int = typer.Option(0, help="Random seed (scan poses)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
+    threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
 ) -> None:
     """Every method on every scan; F@5% against the true shape and the scan, times, figures."""
     from jsrte.baselines import BASELINE_NAMES
@@ -35,7 +36,7 @@ def scans_command(
     if scale not in SCALES:
         raise JsrteError(f"unknown scale {scale!r} (known: {', '.join(SCALES)})")
     loaded = resolve_model(model or category)
-    set_threads(None)
+    set_threads(threads)
     with output_dir(out, overwrite=overwrite, marker="table.md") as folder_out:
         cases = (folder_cases(folder) if folder is not None
                  else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed))

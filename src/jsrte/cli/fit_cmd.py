@@ -27,6 +27,22 @@ def parse_vector(text: str | None, name: str = "--up") -> np.ndarray | None:
     return v / np.linalg.norm(v)
 
 
+def parse_points(texts: list[str] | None, name: str = "--viewpoint") -> np.ndarray | None:
+    """['X,Y,Z', ...] -> (k, 3) positions (scan units); None or empty stays None."""
+    if not texts:
+        return None
+    rows = []
+    for text in texts:
+        try:
+            v = np.array([float(x) for x in text.split(",")])
+        except ValueError:
+            raise JsrteError(f"{name} must be three numbers X,Y,Z, got {text!r}") from None
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise JsrteError(f"{name} must be three finite numbers X,Y,Z, got {text!r}")
+        rows.append(v)
+    return np.stack(rows)
+
+
 def check_preset(preset: str) -> str:
     if preset not in PRESETS:
         raise JsrteError(f"unknown preset {preset!r}; known: {', '.join(PRESETS)}")
@@ -40,6 +56,12 @@ def fit_command(
     out: Path = typer.Option(..., "--out", help="Output folder (fit.json, shape.ply, overlay.png)."),
     model: str = typer.Option("chair", help="Shipped model name or model file."),
     up: str = typer.Option(None, help="Known up axis X,Y,Z (default: the floor normal; +y for meshes)."),
+    viewpoint: list[str] = typer.Option(
+        None, help="Sensor position X,Y,Z in the scan's frame (metres), repeatable; 0,0,0 for a depth "
+                   "frame in camera coordinates. Default: the cameras of the scan's JSON sidecar, if any."),
+    line_of_sight: bool = typer.Option(
+        False, "--line-of-sight", help="Add free-space samples on the lines of sight from the viewpoints "
+                                       "(beyond the paper; docs/presets.md)."),
     preset: str = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)}."),
     hypotheses: int = typer.Option(None, help="Number of θ starts (default: every 30°, 12)."),
     seed: int = typer.Option(0, help="Random seed."),
@@ -60,9 +82,10 @@ def fit_command(
         raise JsrteError("no such file", scan)
     if (out / RESULT_NAME).exists() and not overwrite:
         raise JsrteError(f"already holds a result ({RESULT_NAME}); pass --overwrite to replace it", out)
+    viewpoints = parse_points(viewpoint)
     set_threads(threads)
-    result = fit(scan, model=model, preset=preset, up=parse_vector(up), hypotheses=hypotheses, seed=seed,
-                 progress=progress)
+    result = fit(scan, model=model, preset=preset, up=parse_vector(up), viewpoints=viewpoints,
+                 line_of_sight=line_of_sight, hypotheses=hypotheses, seed=seed, progress=progress)
     with output_dir(out, overwrite=overwrite, marker=RESULT_NAME) as folder:
         query_points = _surface_points(scan, result)
         write_fit_outputs(result, folder, query_points=query_points, up=result.info.get("up"),

@@ -53,6 +53,7 @@ def evaluate_model_command(
     resolution: int = typer.Option(96, help="Marching-cubes resolution."),
     out: Path = typer.Option(None, help="Write the per-shape rows and means as JSON here."),
     seed: int = typer.Option(0, help="Random seed."),
+    threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
 ) -> None:
     """Model-card figures: F@5% / Chamfer of training and held-out procedural shapes."""
     import json
@@ -62,7 +63,7 @@ def evaluate_model_command(
     from jsrte.model.registry import resolve_model
     from jsrte.shapes import EVAL_SET_SEED, generate_set
 
-    set_threads(None)
+    set_threads(threads)
     loaded = resolve_model(model)
     data = loaded.meta.get("data", {})
     if data.get("source") != "procedural":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +14,8 @@ from jsrte.model.checkpoint import DeepSdfModel
 
 
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
-        up: np.ndarray | None = None, hypotheses: int | None = None, seed: int = 0,
-        progress: bool = False) -> FitResult:
+        up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool = False,
+        hypotheses: int | None = None, seed: int = 0, progress: bool = False) -> FitResult:
     """Find the shape and the similarity transform that explain ``query``.
 
     Parameters
@@ -24,17 +25,23 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     model : a shipped model's name, a model file, or a loaded model
     preset : "fast" (default) or "paper" (jsrte.presets)
     up : (3,) the rotation axis if known; else the floor normal (scans) or +y (meshes)
+    viewpoints : (k, 3) sensor positions of a scan (scan units), if known; default: the
+        cameras of the scan's JSON sidecar (hidden-point removal, normal orientation)
+    line_of_sight : add free-space samples on the lines of sight from the viewpoints (beyond
+        the paper; off by default, see docs/presets.md)
     hypotheses : number of θ starts (default: every 30°, 12)
     """
     from jsrte.fit.query import load_query
     from jsrte.model.registry import resolve_model
-    from jsrte.presets import get_preset
+    from jsrte.presets import LINE_OF_SIGHT_SAMPLES, get_preset
 
     settings = get_preset(preset)
+    if line_of_sight:
+        settings = replace(settings, scan_sdf=replace(settings.scan_sdf, n_ray_freespace=LINE_OF_SIGHT_SAMPLES))
     loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)
     rng = np.random.default_rng(seed)
-    sdf_query = query if isinstance(query, SdfQuery) else load_query(query, rng=rng, up=up,
-                                                                     scan_settings=settings.scan_sdf)
+    sdf_query = query if isinstance(query, SdfQuery) else load_query(
+        query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf)
     result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=hypotheses, seed=seed, progress=progress)
     result.info.update(preset=settings.name, model=loaded.name, model_sha256=loaded.meta.get("sha256"),
                        query=sdf_query.info, up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())

@@ -27,6 +27,8 @@ class SdfQuery:
     surface : (k, 3) float64, points on the query surface (scan units): for F-scores and figures
     up : (3,) unit vector or None: the known rotation axis (floor normal)
     floor_offset : float or None: the floor plane is {x : up·x = floor_offset}
+    n_refine_only : the last this many samples (line-of-sight free space) are drawn only once
+        the hypotheses are pruned: the yaw is decided on the paper's evidence, they shape the rest
     """
 
     points: np.ndarray
@@ -35,6 +37,7 @@ class SdfQuery:
     up: np.ndarray | None = None
     floor_offset: float | None = None
     info: dict = field(default_factory=dict)
+    n_refine_only: int = 0
 
 
 @dataclass
@@ -106,7 +109,8 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
             optimizer = _adam(batch, learning_rate(settings, it))
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(settings, it)
-        idx = torch.randint(len(sdf), (min(settings.samples_per_iteration, len(sdf)),), generator=generator)
+        pool = _sample_pool(query, settings, it)
+        idx = torch.randint(pool, (min(settings.samples_per_iteration, pool),), generator=generator)
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp,
                                    latent_penalty=settings.latent_penalty)
         optimizer.zero_grad(set_to_none=True)
@@ -119,6 +123,14 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
     return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
                      time.perf_counter() - start)
+
+
+def _sample_pool(query: SdfQuery, settings: FitSettings, iteration: int) -> int:
+    """How many of the query's samples (from the start) iteration ``iteration`` draws from."""
+    pruning_ahead = settings.prune_after is not None and iteration < settings.prune_after
+    if pruning_ahead and query.n_refine_only < len(query.sdf):
+        return len(query.sdf) - query.n_refine_only
+    return len(query.sdf)
 
 
 def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:

@@ -41,28 +41,38 @@ def query_from_mesh(mesh: trimesh.Trimesh, *, rng: np.random.Generator, up: np.n
 
 
 def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
-                    settings: ScanSdf = ScanSdf()) -> SdfQuery:
+                    viewpoints: np.ndarray | None = None, settings: ScanSdf = ScanSdf()) -> SdfQuery:
     """A scan (point cloud or scan mesh, metres, floor optional when ``up`` is given): the
-    paper's preprocessing, then SDF samples ±δ along the normals plus freespace samples."""
+    paper's preprocessing, then SDF samples ±δ along the normals plus freespace samples, plus
+    free space on the lines of sight when the sensor's ``viewpoints`` (k, 3) are known (given,
+    or the ``cameras`` of the scan's JSON sidecar)."""
     from jsrte.scans.io import load_scan, read_scan_info
     from jsrte.scans.preprocess import prepare_scan
-    from jsrte.sdf.from_scan import scan_sdf_samples
+    from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples
 
     cloud = load_scan(path, rng=rng)
     info = read_scan_info(path) if Path(path).suffix.lower() == ".ply" else None
-    viewpoints = info.cameras if info is not None and len(info.cameras) else None
+    if viewpoints is None and info is not None and len(info.cameras):
+        viewpoints = info.cameras
     prepared = prepare_scan(cloud, rng=rng, up=up, viewpoints=viewpoints)
     points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
+    n_rays = 0
+    if viewpoints is not None:
+        ray_points, ray_sdf = ray_freespace_samples(prepared.points, cloud.points, viewpoints,
+                                                    rng=rng, settings=settings)
+        points, sdf, n_rays = np.concatenate([points, ray_points]), np.concatenate([sdf, ray_sdf]), len(ray_sdf)
     floor_offset = prepared.floor.offset if prepared.floor is not None else None
     return SdfQuery(points.astype(np.float64), sdf.astype(np.float64), prepared.points, up=prepared.up,
                     floor_offset=floor_offset,
                     info={"input": "scan", "scan_points": len(cloud.points),
                           "object_points": len(prepared.points), "samples": len(sdf),
-                          "floor_found": prepared.floor is not None})
+                          "ray_freespace_samples": n_rays,
+                          "floor_found": prepared.floor is not None},
+                    n_refine_only=n_rays)
 
 
 def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
-               scan_settings: ScanSdf = ScanSdf()) -> SdfQuery:
+               viewpoints: np.ndarray | None = None, scan_settings: ScanSdf = ScanSdf()) -> SdfQuery:
     """Dispatch on the file: ``.npz`` SDF samples; OBJ/OFF/STL/GLB complete meshes (up: ``up``
     or +y); PLY/PCD/XYZ/PTS scans (point clouds or scan meshes, floor plane gives up)."""
     path = Path(path)
@@ -74,6 +84,6 @@ def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | N
     if suffix in MESH_QUERY_SUFFIXES:
         return query_from_mesh(load_mesh(path), rng=rng, up=up)
     if suffix in SCAN_SUFFIXES:
-        return query_from_scan(path, rng=rng, up=up, settings=scan_settings)
+        return query_from_scan(path, rng=rng, up=up, viewpoints=viewpoints, settings=scan_settings)
     known = ", ".join((".npz",) + MESH_QUERY_SUFFIXES + SCAN_SUFFIXES)
     raise JsrteError(f"unsupported input {path.suffix!r} (use {known})", path)

@@ -87,19 +87,20 @@ def ray_freespace_samples(
     Returns
     -------
     xyz : (r, 3) float32, sample positions (metres), r <= min(``n_ray_freespace``,
-        ``ray_per_point`` n): inside the grown
-        bounding sphere of the object, at least ``ray_margin_m`` in front of the point seen and
-        from every object point
+        ``ray_per_point`` n): inside the grown bounding sphere of the object, at least
+        ``ray_margin_m`` in front of the point seen and from every object point
     sdf : (r,) float32, distance to the nearest object point (metres, positive: outside)
     """
     from pykdtree.kdtree import KDTree
+
+    from jsrte.metrics.surface import bounding_sphere
 
     object_points = np.ascontiguousarray(object_points, dtype=np.float64)
     viewpoints = np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3)
     n = min(settings.n_ray_freespace, int(settings.ray_per_point * len(object_points)))
     if n <= 0 or not len(viewpoints) or not len(object_points):
         return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
-    centre, radius = _bounding_sphere(object_points)
+    centre, radius = bounding_sphere(object_points)
     radius *= settings.ray_region_factor
     seen = np.asarray(observed_points, dtype=np.float64)
     seen = seen[np.linalg.norm(seen - centre, axis=1) < radius]
@@ -115,12 +116,6 @@ def ray_freespace_samples(
     distance, _ = KDTree(object_points).query(xyz, k=1)
     keep = (exit_distance > settings.ray_margin_m) & (distance >= settings.ray_margin_m)
     return xyz[keep].astype(np.float32), distance[keep].astype(np.float32)
-
-
-def _bounding_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """Centre (3,) of the axis-aligned box and the largest distance from it (the points' units)."""
-    centre = (points.min(axis=0) + points.max(axis=0)) / 2.0
-    return centre, float(np.linalg.norm(points - centre, axis=1).max())
 
 
 def _visible_pairs(points: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:

@@ -73,6 +73,9 @@ def test_checkpoint_round_trip_and_bad_files(tmp_path):
     torch.testing.assert_close(back.codes, model.codes)
     assert back.meta["category"] == "chair" and back.meta["architecture"] == TINY.to_dict()
     assert json.loads((tmp_path / "m.json").read_text())["sha256"] == back.meta["sha256"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # readable by others as any file (not 0600)
     with pytest.raises(JsrteError, match="does not match the expected"):
         load_model(path, expect=ARCHITECTURES["cpu"])
     corrupt = tmp_path / "corrupt.safetensors"

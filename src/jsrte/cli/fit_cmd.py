@@ -18,29 +18,26 @@ def parse_vector(text: str | None, name: str = "--up") -> np.ndarray | None:
     """'X,Y,Z' -> unit (3,) vector; None stays None."""
     if text is None:
         return None
-    try:
-        v = np.array([float(x) for x in text.split(",")])
-    except ValueError:
-        raise JsrteError(f"{name} must be three numbers X,Y,Z, got {text!r}") from None
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+    v = _three_numbers(text, name)
+    if np.linalg.norm(v) == 0:
         raise JsrteError(f"{name} must be a non-zero vector X,Y,Z, got {text!r}")
     return v / np.linalg.norm(v)
 
 
 def parse_points(texts: list[str] | None, name: str = "--viewpoint") -> np.ndarray | None:
     """['X,Y,Z', ...] -> (k, 3) positions (scan units); None or empty stays None."""
-    if not texts:
-        return None
-    rows = []
-    for text in texts:
-        try:
-            v = np.array([float(x) for x in text.split(",")])
-        except ValueError:
-            raise JsrteError(f"{name} must be three numbers X,Y,Z, got {text!r}") from None
-        if v.shape != (3,) or not np.all(np.isfinite(v)):
-            raise JsrteError(f"{name} must be three finite numbers X,Y,Z, got {text!r}")
-        rows.append(v)
-    return np.stack(rows)
+    return np.stack([_three_numbers(text, name) for text in texts]) if texts else None
+
+
+def _three_numbers(text: str, name: str) -> np.ndarray:
+    """'X,Y,Z' -> (3,) finite floats, or a one-line error naming the option."""
+    try:
+        v = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        v = np.array([])
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise JsrteError(f"{name} must be three finite numbers X,Y,Z, got {text!r}")
+    return v
 
 
 def check_preset(preset: str) -> str:

@@ -294,6 +294,15 @@ class SyntheticReport:
     seconds: float = 0.0
 
 
+def _model_source(path: str | None) -> str:
+    """'shipped' for a model inside the package, else the file's name (no machine paths in reports)."""
+    from jsrte.model.registry import PRETRAINED_DIR
+
+    if path is None:
+        return "in memory"
+    return "shipped" if Path(path).resolve().parent == PRETRAINED_DIR.resolve() else Path(path).name
+
+
 def _category_number(category: str) -> int:
     return CATEGORIES.index(category) if category in CATEGORIES else len(CATEGORIES)
 
@@ -497,7 +506,8 @@ def summary_markdown(report: SyntheticReport, config: SyntheticConfig) -> str:
         "| scenario | Δs | Δψ, Δρ | Δθ | ‖Δt‖ | source |", "|---|---|---|---|---|---|", scen, "",
     ]
     for category, info in report.models.items():
-        lines.append(f"- Model for {category}: `{info['name']}` ({info.get('path')}, sha256 "
+        where = _model_source(info.get("path"))
+        lines.append(f"- Model for {category}: `{info['name']}` ({where}, sha256 "
                      f"{str(info.get('sha256'))[:16]}…)")
     for category, why in report.skipped.items():
         lines.append(f"- **{category}: skipped** — {why} (none shipped under this name; run it alone with "

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import set_threads
+from jsrte.cli.common import resolve_device, set_threads
 from jsrte.errors import JsrteError
 from jsrte.presets import PRESETS, SCENARIOS, SYNTHETIC_SCALES, CompressionSettings
 
@@ -70,6 +70,7 @@ def synthetic_command(
                                               "preset's selection resolution)."),
     seed: int = typer.Option(0, help="Random seed."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
+    device: str = typer.Option("cpu", help="Torch device of the fits: cpu, cuda or cuda:N."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
 ) -> None:
     """Paper section 4.1 (Fig. 2) and the supplementary's wider ranges: fits of held-out shapes under
@@ -100,7 +101,8 @@ def synthetic_command(
         sampling=replace(PRESETS[preset_name].sampling, n_points=samples or base.query_samples),
         seed=seed, resolution=resolution)
     _check_out(out, SUMMARY_MD, overwrite)
-    models = load_models(cats, model)
+    torch_device = resolve_device(device)
+    models = {c: m if m is None else m.to(torch_device) for c, m in load_models(cats, model).items()}
     if all(m is None for m in models.values()):
         raise JsrteError(f"no model for any of {', '.join(cats)}: none is shipped; pass --model PATH "
                          "with one category")

@@ -25,6 +25,7 @@ def scans_command(
     seed: int = typer.Option(0, help="Random seed (scan poses)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
+    jobs: int = typer.Option(1, help="Scans run in this many processes at once (threads shared among them)."),
 ) -> None:
     """Every method on every scan; F@5% against the true shape and the scan, times, figures."""
     from jsrte.baselines import BASELINE_NAMES
@@ -35,10 +36,13 @@ def scans_command(
     chosen = split_names(methods, ("jsrte",) + BASELINE_NAMES, "method")
     if scale not in SCALES:
         raise JsrteError(f"unknown scale {scale!r} (known: {', '.join(SCALES)})")
+    if jobs < 1:
+        raise JsrteError(f"--jobs must be positive, got {jobs}")
     loaded = resolve_model(model or category)
     set_threads(threads)
     with output_dir(out, overwrite=overwrite, marker="table.md") as folder_out:
         cases = (folder_cases(folder) if folder is not None
                  else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed))
-        run_scan_experiment(cases, list(chosen), folder_out, model=loaded, preset=preset, seed=seed)
+        run_scan_experiment(cases, list(chosen), folder_out, model=loaded, preset=preset, seed=seed,
+                            jobs=jobs, threads=threads or None)
     typer.echo((out / "table.md").read_text())

@@ -9,7 +9,7 @@ import numpy as np
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import set_threads
+from jsrte.cli.common import resolve_device, set_threads
 from jsrte.errors import JsrteError
 from jsrte.presets import DEFAULT_PRESET, PRESETS
 
@@ -62,7 +62,7 @@ def fit_command(
     preset: str = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)}."),
     hypotheses: int = typer.Option(None, help="Number of θ starts (default: every 30°, 12)."),
     seed: int = typer.Option(0, help="Random seed."),
-    device: str = typer.Option("cpu", help="Torch device (cpu; cuda where available)."),
+    device: str = typer.Option("cpu", help="Torch device: cpu, cuda or cuda:N (where PyTorch sees a GPU)."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
@@ -73,8 +73,7 @@ def fit_command(
     from jsrte.io import output_dir
 
     check_preset(preset)
-    if device != "cpu":
-        raise JsrteError(f"device {device!r} is not supported by this build yet; use --device cpu")
+    torch_device = resolve_device(device)
     if not scan.exists():
         raise JsrteError("no such file", scan)
     if (out / RESULT_NAME).exists() and not overwrite:
@@ -82,7 +81,8 @@ def fit_command(
     viewpoints = parse_points(viewpoint)
     set_threads(threads)
     result = fit(scan, model=model, preset=preset, up=parse_vector(up), viewpoints=viewpoints,
-                 line_of_sight=line_of_sight, hypotheses=hypotheses, seed=seed, progress=progress)
+                 line_of_sight=line_of_sight, hypotheses=hypotheses, seed=seed, progress=progress,
+                 device=torch_device)
     with output_dir(out, overwrite=overwrite, marker=RESULT_NAME) as folder:
         query_points = _surface_points(scan, result)
         write_fit_outputs(result, folder, query_points=query_points, up=result.info.get("up"),
@@ -92,8 +92,11 @@ def fit_command(
 
 def _surface_points(scan: Path, result) -> np.ndarray:  # noqa: ANN001
     """The query's points for the overlay figure."""
+    from jsrte.fit.query import is_query_file, read_query_file
     from jsrte.scans.io import load_scan
 
+    if scan.suffix.lower() == ".npz" and is_query_file(scan):
+        return read_query_file(scan).surface
     if scan.suffix.lower() == ".npz":
         from jsrte.sdf.mesh_sdf import SdfSamples
 
@@ -101,6 +104,36 @@ def _surface_points(scan: Path, result) -> np.ndarray:  # noqa: ANN001
         near = np.abs(s.sdf) < 0.01
         return s.points[near] * s.scale + s.centre
     return load_scan(scan).points
+
+
+@app.command("prepare")
+def prepare_command(
+    scan: Path = typer.Argument(..., help="Scan (PLY/PCD/XYZ, metres) or complete mesh (OBJ/OFF/STL/GLB)."),
+    out: Path = typer.Option(..., "--out", help="Query file to write (.npz), for `jsrte fit QUERY.npz`."),
+    up: str = typer.Option(None, help="Known up axis X,Y,Z (default: the floor normal; +y for meshes)."),
+    viewpoint: list[str] = typer.Option(None, help="Sensor position X,Y,Z (metres), repeatable."),
+    line_of_sight: bool = typer.Option(False, "--line-of-sight", help="Add line-of-sight free-space samples."),
+    seed: int = typer.Option(0, help="Random seed."),
+    overwrite: bool = typer.Option(False, help="Replace an existing query file."),
+) -> None:
+    """Preprocess a scan once into the fit's SDF query (floor, outliers, normals, samples): fit it
+    later or on another machine (a GPU box without Open3D) with `jsrte fit QUERY.npz`."""
+    from dataclasses import replace
+
+    from jsrte.fit.query import load_query, save_query
+    from jsrte.presets import LINE_OF_SIGHT_SAMPLES, ScanSdf
+
+    if out.suffix.lower() != ".npz":
+        raise JsrteError("the query file must end in .npz", out)
+    if out.exists() and not overwrite:
+        raise JsrteError("already exists; pass --overwrite to replace it", out)
+    settings = replace(ScanSdf(), n_ray_freespace=LINE_OF_SIGHT_SAMPLES) if line_of_sight else ScanSdf()
+    query = load_query(scan, rng=np.random.default_rng(seed), up=parse_vector(up), viewpoints=parse_points(viewpoint),
+                       scan_settings=settings)
+    query.info["source"] = scan.name
+    save_query(query, out)
+    typer.echo(f"wrote {out}: {len(query.sdf)} SDF samples, {len(query.surface)} surface points"
+               + ("" if query.up is None else f", up {np.round(query.up, 3).tolist()}"))
 
 
 def _report(result, out: Path) -> None:  # noqa: ANN001

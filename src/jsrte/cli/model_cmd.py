@@ -8,7 +8,7 @@ import numpy as np
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import set_threads
+from jsrte.cli.common import resolve_device, set_threads
 from jsrte.errors import JsrteError
 
 
@@ -54,6 +54,7 @@ def evaluate_model_command(
     out: Path = typer.Option(None, help="Write the per-shape rows and means as JSON here."),
     seed: int = typer.Option(0, help="Random seed."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
+    device: str = typer.Option("cpu", help="Torch device: cpu, cuda or cuda:N."),
 ) -> None:
     """Model-card figures: F@5% / Chamfer of training and held-out procedural shapes."""
     import json
@@ -64,7 +65,7 @@ def evaluate_model_command(
     from jsrte.shapes import EVAL_SET_SEED, generate_set
 
     set_threads(threads)
-    loaded = resolve_model(model)
+    loaded = resolve_model(model).to(resolve_device(device))
     data = loaded.meta.get("data", {})
     if data.get("source") != "procedural":
         raise JsrteError("evaluate-model needs a model trained on procedural shapes (its data is regenerated)")

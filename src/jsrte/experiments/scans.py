@@ -85,36 +85,105 @@ def run_method(method: str, case: ScanCase, *, model: object, database: object, 
 
 def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *, model: object,
                         preset: str = "fast", seed: int = 0, figure_scans: int = 4,
-                        progress: bool = True) -> list[dict]:
-    """Every method on every scan; writes results.csv, table.md, table.csv, figure PNGs."""
+                        progress: bool = True, jobs: int = 1, threads: int | None = None) -> list[dict]:
+    """Every method on every scan; writes results.csv, table.md, table.csv, figure PNGs.
+
+    With ``jobs`` > 1 the first scan runs here (it builds the baselines' database, descriptors
+    and PointNet classifier into the on-disk cache), the others in ``jobs`` worker processes
+    (spawned, ``threads`` // ``jobs`` torch threads each) that read that cache.
+    """
     from tqdm import tqdm
 
-    from jsrte.experiments.truth import score_against_truth
-    from jsrte.scans.io import load_scan
-
     database = _database(model) if any(m != "jsrte" for m in methods) else None
-    rows, figures = [], []
-    for case in tqdm(cases, desc="scans", disable=not progress):
-        scan_points = load_scan(case.path).points
-        results = {}
-        for method in methods:
+    context = _CaseContext(methods, model, database, preset, seed)
+    rows: list[dict] = []
+    figures: list[Path] = []
+
+    def record(case: ScanCase, case_rows: list[dict], results: dict) -> None:
+        rows.extend(case_rows)
+        if len(figures) < figure_scans:
+            figures.append(_figure(case, _scan_points(case), results, methods, out))
+        _write_rows(rows, out / "results.csv")
+
+    bar = tqdm(total=len(cases), desc="scans", disable=not progress)
+    serial = cases if jobs <= 1 else cases[:1]
+    for case in serial:
+        record(case, *context.run(case))
+        bar.update(1)
+    if len(cases) > len(serial):
+        for case, (case_rows, results) in _in_workers(cases[len(serial):], context, jobs, threads):
+            record(case, case_rows, results)
+            bar.update(1)
+    bar.close()
+    _write_table(rows, methods, out, n_scans=len(cases))
+    return rows
+
+
+@dataclass
+class _CaseContext:
+    """What every scan's runs need (pickled once into each worker process)."""
+
+    methods: list[str]
+    model: object
+    database: object
+    preset: str
+    seed: int
+
+    def run(self, case: ScanCase) -> tuple[list[dict], dict]:
+        """Rows (one per method) and the results by method, for one scan."""
+        from jsrte.experiments.truth import score_against_truth
+
+        scan_points = _scan_points(case)
+        rows, results = [], {}
+        for method in self.methods:
             row = {"scan": case.name, "method": method, "status": "ok", "error": ""}
             started = time.perf_counter()
             try:
-                result = run_method(method, case, model=model, database=database, preset=preset, seed=seed)
+                result = run_method(method, case, model=self.model, database=self.database,
+                                    preset=self.preset, seed=self.seed)
             except JsrteError as exc:
                 row.update(status="failed", error=str(exc))
                 result = None
             row["seconds"] = round(time.perf_counter() - started, 2)
             if result is not None:
                 results[method] = result
-                row.update(_scores(result, case, scan_points, seed, score_against_truth))
+                row.update(_scores(result, case, scan_points, self.seed, score_against_truth))
             rows.append(row)
-        if len(figures) < figure_scans:
-            figures.append(_figure(case, scan_points, results, methods, out))
-        _write_rows(rows, out / "results.csv")
-    _write_table(rows, methods, out, n_scans=len(cases))
-    return rows
+        return rows, results
+
+
+_WORKER_CONTEXT: _CaseContext | None = None
+
+
+def _init_worker(context: _CaseContext, threads: int) -> None:
+    import torch
+
+    global _WORKER_CONTEXT
+    _WORKER_CONTEXT = context
+    torch.set_num_threads(threads)
+
+
+def _run_in_worker(case: ScanCase) -> tuple[list[dict], dict]:
+    assert _WORKER_CONTEXT is not None
+    return _WORKER_CONTEXT.run(case)
+
+
+def _in_workers(cases: list[ScanCase], context: _CaseContext, jobs: int, threads: int | None):  # noqa: ANN202
+    """(case, run output) in the order of ``cases``, computed by ``jobs`` spawned processes."""
+    import multiprocessing
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    per_job = max(1, (threads or os.cpu_count() or 1) // jobs)
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_init_worker, initargs=(context, per_job)) as pool:
+        yield from zip(cases, pool.map(_run_in_worker, cases), strict=True)
+
+
+def _scan_points(case: ScanCase) -> np.ndarray:
+    from jsrte.scans.io import load_scan
+
+    return load_scan(case.path).points
 
 
 def _database(model: object) -> object:

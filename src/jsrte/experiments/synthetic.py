@@ -224,7 +224,7 @@ def fit_hypotheses(model: DeepSdfModel, query: SdfQuery, inits: list[Init], sett
     resolution = resolution or settings.selection_resolution
     outcomes = []
     for h in range(len(inits)):
-        latent = result.batch.latent[h].detach().to(torch.float32).numpy()
+        latent = result.batch.latent[h].detach().to("cpu", torch.float32).numpy()
         transform = result.batch.transform(h)
         mesh = decode_mesh(model.decoder, latent, resolution=resolution).mesh
         if mesh is not None:

@@ -6,6 +6,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from jsrte.fit.api import fit_query
 from jsrte.fit.optimize import SdfQuery
@@ -15,7 +16,8 @@ from jsrte.model.checkpoint import DeepSdfModel
 
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
         up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool = False,
-        hypotheses: int | None = None, seed: int = 0, progress: bool = False) -> FitResult:
+        hypotheses: int | None = None, seed: int = 0, progress: bool = False,
+        device: str | torch.device = "cpu") -> FitResult:
     """Find the shape and the similarity transform that explain ``query``.
 
     Parameters
@@ -30,6 +32,7 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     line_of_sight : add free-space samples on the lines of sight from the viewpoints (beyond
         the paper; off by default, see docs/presets.md)
     hypotheses : number of θ starts (default: every 30°, 12)
+    device : where the decoder runs ("cpu", "cuda", ...); a loaded ``model`` is moved there
     """
     from jsrte.fit.query import load_query
     from jsrte.model.registry import resolve_model
@@ -38,13 +41,14 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     settings = get_preset(preset)
     if line_of_sight:
         settings = replace(settings, scan_sdf=replace(settings.scan_sdf, n_ray_freespace=LINE_OF_SIGHT_SAMPLES))
-    loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)
+    loaded = (model if isinstance(model, DeepSdfModel) else resolve_model(model)).to(device)
     rng = np.random.default_rng(seed)
     sdf_query = query if isinstance(query, SdfQuery) else load_query(
         query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf)
     result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=hypotheses, seed=seed, progress=progress)
     result.info.update(preset=settings.name, model=loaded.name, model_sha256=loaded.meta.get("sha256"),
-                       query=sdf_query.info, up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())
+                       query=sdf_query.info, device=str(device),
+                       up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())
     return result
 
 

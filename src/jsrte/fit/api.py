@@ -50,7 +50,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     reports = _reports(result, inits)
     winner, criterion = _select(model, query, result, reports, settings, seed)
     t_sel = time.perf_counter() - started - t_opt
-    latent = result.batch.latent[winner].detach().to(torch.float32).numpy()
+    latent = result.batch.latent[winner].detach().to("cpu", torch.float32).numpy()
     mesh = decode_mesh(decoder, latent, resolution=settings.extract_resolution).mesh
     timing = {"optimize": round(t_opt, 2), "select": round(t_sel, 2),
               "extract": round(time.perf_counter() - started - t_opt - t_sel, 2),

@@ -12,7 +12,7 @@ import torch
 from tqdm import tqdm
 
 from jsrte.fit.params import HypothesisBatch, Init
-from jsrte.model.decoder import Decoder
+from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.presets import FitSettings
 
 
@@ -82,16 +82,21 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
 def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
              fixed: frozenset[str] = frozenset(), generator: torch.Generator,
              progress: bool = False) -> Optimized:
-    """Run Adam on all hypotheses as one batch; prune to ``prune_keep`` after ``prune_after``."""
+    """Run Adam on all hypotheses as one batch; prune to ``prune_keep`` after ``prune_after``.
+
+    Runs on the decoder's device (``generator`` is a CPU generator: sample indices are drawn on
+    the CPU, so a seed gives the same draws on every device).
+    """
     start = time.perf_counter()
     decoder.eval()
     decoder.requires_grad_(False)
+    device = decoder_device(decoder)
     batch = HypothesisBatch(inits, decoder.config.latent_size, latent_init_std=settings.latent_init_std,
-                            fixed=fixed, generator=generator)
+                            fixed=fixed, generator=generator).to(device)
     clamp = None if settings.clamp_canonical is None else settings.clamp_canonical * float(
         np.median([i.scale for i in inits]))
-    points = torch.as_tensor(query.points, dtype=torch.float64)
-    sdf = torch.as_tensor(query.sdf, dtype=torch.float64)
+    points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
+    sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
     survivors = np.arange(len(inits))
     pruned: dict[int, float] = {}
     optimizer = _adam(batch, settings.lr)
@@ -110,14 +115,15 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(settings, it)
         pool = _sample_pool(query, settings, it)
-        idx = torch.randint(pool, (min(settings.samples_per_iteration, pool),), generator=generator)
+        idx = torch.randint(pool, (min(settings.samples_per_iteration, pool),), generator=generator).to(device)
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp,
                                    latent_penalty=settings.latent_penalty)
         optimizer.zero_grad(set_to_none=True)
         losses.sum().backward()
         optimizer.step()
         batch.clamp_scale(settings.scale_min, settings.scale_max)
-        recent = 0.8 * recent + 0.2 * losses.detach().double() if it else losses.detach().double()
+        current = losses.detach().double().cpu()
+        recent = 0.8 * recent + 0.2 * current if it else current
         evaluations += len(batch) * len(idx)
     final = _final_losses(decoder, batch, points, sdf, settings, clamp, generator)
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
@@ -143,8 +149,8 @@ def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:
 def _final_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
                   settings: FitSettings, clamp: float | None, generator: torch.Generator) -> np.ndarray:
     n = min(settings.eval_samples, len(sdf))
-    idx = torch.randperm(len(sdf), generator=generator)[:n]
+    idx = torch.randperm(len(sdf), generator=generator)[:n].to(sdf.device)
     with torch.no_grad():
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp,
                                    latent_penalty=settings.latent_penalty)
-    return losses.double().numpy()
+    return losses.double().cpu().numpy()

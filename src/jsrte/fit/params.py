@@ -89,13 +89,14 @@ class HypothesisBatch(torch.nn.Module):
         """Keep only hypotheses ``index`` (pruning); optimizer state must be rebuilt after."""
         for name in ("scale", "psi", "rho", "theta", "translation", "latent"):
             old = getattr(self, name)
-            setattr(self, name, torch.nn.Parameter(old.detach()[index].clone(), requires_grad=old.requires_grad))
-        self.base_rotation = self.base_rotation[index]
+            kept = old.detach()[index.to(old.device)].clone()
+            setattr(self, name, torch.nn.Parameter(kept, requires_grad=old.requires_grad))
+        self.base_rotation = self.base_rotation[index.to(self.base_rotation.device)]
 
     def transform(self, h: int) -> Sim3:
         """``scan_from_canonical`` of hypothesis ``h``."""
         with torch.no_grad():
-            return Sim3(float(self.scale[h]), self.rotation()[h].numpy(), self.translation[h].numpy())
+            return Sim3(float(self.scale[h]), self.rotation()[h].cpu().numpy(), self.translation[h].cpu().numpy())
 
     def angles(self, h: int) -> dict[str, float]:
         with torch.no_grad():

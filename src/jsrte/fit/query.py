@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -71,14 +72,65 @@ def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarra
                     n_refine_only=n_rays)
 
 
+QUERY_FORMAT = "jsrte-query"
+"""The ``format`` entry of a query file (``jsrte prepare``), told apart from ``jsrte sample`` files."""
+
+
+def save_query(query: SdfQuery, path: str | Path) -> None:
+    """Write ``query`` as an ``.npz`` query file, atomically (read back by :func:`read_query_file`)."""
+    from jsrte.io import write_with
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(f, format=np.array(QUERY_FORMAT), points=query.points, sdf=query.sdf, surface=query.surface,
+                     up=np.full(3, np.nan) if query.up is None else np.asarray(query.up, float),
+                     floor_offset=np.float64(np.nan if query.floor_offset is None else query.floor_offset),
+                     n_refine_only=np.int64(query.n_refine_only), info=np.array(json.dumps(query.info)))
+
+    write_with(path, write)
+
+
+def is_query_file(path: str | Path) -> bool:
+    """Whether ``path`` is an ``.npz`` written by :func:`save_query`."""
+    try:
+        with np.load(path) as data:
+            return "format" in data.files and str(data["format"]) == QUERY_FORMAT
+    except Exception:
+        return False
+
+
+def read_query_file(path: str | Path) -> SdfQuery:
+    """The query saved by :func:`save_query`; JsrteError naming the file if it is not one."""
+    try:
+        with np.load(path) as data:
+            points, sdf, surface = data["points"], data["sdf"], data["surface"]
+            up, floor = data["up"], float(data["floor_offset"])
+            n_refine, info = int(data["n_refine_only"]), json.loads(str(data["info"]))
+    except Exception as exc:
+        raise JsrteError(f"not a jsrte query file ({type(exc).__name__}: {exc})", path) from exc
+    if points.ndim != 2 or points.shape[1] != 3 or sdf.shape != (len(points),) or surface.ndim != 2:
+        raise JsrteError(f"points {points.shape}, sdf {sdf.shape} and surface {surface.shape} do not fit", path)
+    if not (np.isfinite(points).all() and np.isfinite(sdf).all()):
+        raise JsrteError("holds NaN or infinite samples", path)
+    return SdfQuery(points.astype(np.float64), sdf.astype(np.float64), surface.astype(np.float64),
+                    up=None if np.isnan(up).any() else up.astype(np.float64),
+                    floor_offset=None if np.isnan(floor) else floor, info=info, n_refine_only=n_refine)
+
+
 def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
                viewpoints: np.ndarray | None = None, scan_settings: ScanSdf = ScanSdf()) -> SdfQuery:
-    """Dispatch on the file: ``.npz`` SDF samples; OBJ/OFF/STL/GLB complete meshes (up: ``up``
+    """Dispatch on the file: ``.npz`` query files (``jsrte prepare``; ``up`` overrides theirs) or
+    SDF samples (``jsrte sample``); OBJ/OFF/STL/GLB complete meshes (up: ``up``
     or +y); PLY/PCD/XYZ/PTS scans (point clouds or scan meshes, floor plane gives up)."""
     path = Path(path)
     if not path.exists():
         raise JsrteError("no such file", path)
     suffix = path.suffix.lower()
+    if suffix == ".npz" and is_query_file(path):
+        query = read_query_file(path)
+        if up is not None:
+            query.up = np.asarray(up, float) / np.linalg.norm(up)
+        return query
     if suffix == ".npz":
         return query_from_samples(SdfSamples.load(path), up=up)
     if suffix in MESH_QUERY_SUFFIXES:

@@ -55,6 +55,30 @@ class DeepSdfModel:
         """The mean of the training codes (d,)."""
         return self.codes.mean(0)
 
+    def to(self, device: torch.device | str) -> DeepSdfModel:
+        """Move the decoder to ``device`` (in place; the codes stay on the CPU); returns self.
+
+        Fits, reconstructions and mesh extraction run where the decoder is.
+        """
+        self.decoder.to(device)
+        return self
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickling (worker processes): a weight-normed decoder pickles only through its state dict."""
+        if type(self.decoder) is Decoder:
+            weights = {k: v.detach().cpu() for k, v in self.decoder.state_dict().items()}
+            return {"config": self.decoder.config.to_dict(), "weights": weights, "codes": self.codes,
+                    "meta": self.meta}
+        return dict(self.__dict__)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        if "config" in state:
+            decoder = Decoder(DecoderConfig.from_dict(state["config"]))
+            decoder.load_state_dict(state["weights"])
+            decoder.eval()
+            state = {"decoder": decoder, "codes": state["codes"], "meta": state["meta"]}
+        self.__dict__.update(state)
+
 
 def tensors_of(model: DeepSdfModel) -> dict[str, torch.Tensor]:
     tensors = {f"decoder.{k}": v.detach().contiguous() for k, v in model.decoder.state_dict().items()}

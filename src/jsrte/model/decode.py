@@ -7,16 +7,20 @@ import torch
 import trimesh
 
 from jsrte.extract.marching import Extraction, extract_coarse_to_fine, extract_dense
-from jsrte.model.decoder import Decoder
+from jsrte.model.decoder import Decoder, decoder_device
 
 
 def sdf_function(decoder: Decoder, latent: torch.Tensor | np.ndarray):  # noqa: ANN201
-    """A function points (n, 3) float32 canonical -> sdf (n,) for one latent code (d,)."""
-    z = torch.as_tensor(np.asarray(latent), dtype=torch.float32)
+    """A function points (n, 3) float32 canonical -> sdf (n,) for one latent code (d,).
+
+    Evaluates on the decoder's device; the points may be anywhere, the result is on that device.
+    """
+    device = decoder_device(decoder)
+    z = torch.as_tensor(latent, dtype=torch.float32).detach().to(device)
 
     def evaluate(points: torch.Tensor) -> torch.Tensor:
         with torch.no_grad():
-            return decoder(points.to(torch.float32), z)
+            return decoder(points.to(device, torch.float32), z)
 
     return evaluate
 

@@ -116,5 +116,12 @@ class Decoder(nn.Module):
         return torch.tanh(self.head(h)).squeeze(-1)
 
 
+def decoder_device(module: nn.Module) -> torch.device:
+    """The device of ``module``'s parameters or buffers (where its inputs must be); CPU if it has none."""
+    for tensor in (*module.parameters(), *module.buffers()):
+        return tensor.device
+    return torch.device("cpu")
+
+
 def count_parameters(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())

@@ -36,7 +36,7 @@ def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.ra
     fixed = frozenset(PARAMETER_NAMES) - {"latent"}
     out = optimize(model.decoder, query, [init], settings, fixed=fixed,
                    generator=torch.Generator().manual_seed(int(rng.integers(2**31))))
-    return out.batch.latent[0].detach().to(torch.float32).numpy(), norm
+    return out.batch.latent[0].detach().to("cpu", torch.float32).numpy(), norm
 
 
 def reconstruct_mesh(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator, resolution: int = 128,

@@ -17,13 +17,14 @@ from jsrte.model.checkpoint import DeepSdfModel
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
         up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool = False,
         hypotheses: int | None = None, seed: int = 0, progress: bool = False,
-        device: str | torch.device = "cpu") -> FitResult:
+        device: str | torch.device | None = None) -> FitResult:
     """Find the shape and the similarity transform that explain ``query``.
 
     Parameters
     ----------
     query : a scan (PLY/PCD/XYZ, metres, any pose, floor optional with ``up``), a complete
-        mesh (OBJ/OFF/STL/GLB), an SDF-sample ``.npz``, or an ``SdfQuery``
+        mesh (OBJ/OFF/STL/GLB), an SDF-sample ``.npz`` (``jsrte sample``), a query file
+        (``jsrte prepare``), or an ``SdfQuery``
     model : a shipped model's name, a model file, or a loaded model
     preset : "fast" (default) or "paper" (jsrte.presets)
     up : (3,) the rotation axis if known; else the floor normal (scans) or +y (meshes)
@@ -33,21 +34,25 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
         the paper; off by default, see docs/presets.md)
     hypotheses : number of θ starts (default: every 30°, 12)
     device : where the decoder runs ("cpu", "cuda", ...); a loaded ``model`` is moved there
+        (None: a loaded model stays where it is, a named one runs on the CPU)
     """
     from jsrte.fit.query import load_query
+    from jsrte.model.decoder import decoder_device
     from jsrte.model.registry import resolve_model
     from jsrte.presets import LINE_OF_SIGHT_SAMPLES, get_preset
 
     settings = get_preset(preset)
     if line_of_sight:
         settings = replace(settings, scan_sdf=replace(settings.scan_sdf, n_ray_freespace=LINE_OF_SIGHT_SAMPLES))
-    loaded = (model if isinstance(model, DeepSdfModel) else resolve_model(model)).to(device)
+    loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)
+    if device is not None:
+        loaded.to(device)
     rng = np.random.default_rng(seed)
     sdf_query = query if isinstance(query, SdfQuery) else load_query(
         query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf)
     result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=hypotheses, seed=seed, progress=progress)
     result.info.update(preset=settings.name, model=loaded.name, model_sha256=loaded.meta.get("sha256"),
-                       query=sdf_query.info, device=str(device),
+                       query=sdf_query.info, device=str(decoder_device(loaded.decoder)),
                        up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())
     return result
 

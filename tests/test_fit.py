@@ -134,3 +134,17 @@ def test_refine_only_samples_wait_until_the_hypotheses_are_pruned(lshape, lshape
     without = run(-1)
     assert np.array_equal(run(len(extra)), without)
     assert not np.allclose(run(0), without)  # used from the start, they do change the fit
+
+
+def test_known_up_axis_is_held_unless_freed(lshape, lshape_mesh):
+    truth, up = tilted_truth(theta=1.0)
+    query = make_query(lshape_mesh, truth, up, np.random.default_rng(4))
+    tilted_up = up + np.array([0.0, 0.0, 0.15])  # a floor normal a few degrees off the truth
+    query.up = tilted_up / np.linalg.norm(tilted_up)
+    short = replace(SETTINGS, iterations=60, prune_after=None)
+    held = fit_query(lshape, query, short, n_hypotheses=2, seed=0)
+    free = fit_query(lshape, query, replace(short, hold_axis=False), n_hypotheses=2, seed=0)
+    assert held.info["fixed_parameters"] == ["psi", "rho"] and free.info["fixed_parameters"] == []
+    np.testing.assert_allclose(held.transform.R @ [0.0, 1.0, 0.0], query.up, atol=1e-9)
+    moved = np.degrees(np.arccos(np.clip(free.transform.R @ [0.0, 1.0, 0.0] @ query.up, -1.0, 1.0)))
+    assert moved > 0.5  # free, the axis leaves the wrong floor normal towards the truth

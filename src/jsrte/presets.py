@@ -74,6 +74,11 @@ class FitSettings:
     """Weight of ||z||^2 (DeepSDF's code regularization)."""
     latent_init_std: float = 0.01
     """z0 ~ N(0, std^2 I)."""
+    hold_axis: bool = True
+    """With a known up axis (the floor normal, or ``--up``) hold ψ and ρ there and optimize θ
+    about it: the paper's known-axis scenario, which its scan experiment uses ("we estimate ω
+    using the normal vector to the floor plane ... the only parameter left is θ"). False lets
+    the axis move too (``jsrte fit --free-axis``); it tipped sparse scans over (docs/presets.md)."""
     theta_grid_deg: float = 30.0
     """Initial yaw hypotheses every this many degrees (12 for 30 deg)."""
     prune_after: int | None = None

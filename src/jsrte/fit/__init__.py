@@ -16,6 +16,7 @@ from jsrte.model.checkpoint import DeepSdfModel
 
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
         up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool = False,
+        free_axis: bool = False,
         hypotheses: int | None = None, seed: int = 0, progress: bool = False,
         device: str | torch.device | None = None) -> FitResult:
     """Find the shape and the similarity transform that explain ``query``.
@@ -32,6 +33,8 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
         cameras of the scan's JSON sidecar (hidden-point removal, normal orientation)
     line_of_sight : add free-space samples on the lines of sight from the viewpoints (beyond
         the paper; off by default, see docs/presets.md)
+    free_axis : let the rotation axis move from the up axis too (default: held, the paper's
+        known-axis mode, whenever the up axis is known)
     hypotheses : number of θ starts (default: every 30°, 12)
     device : where the decoder runs ("cpu", "cuda", ...); a loaded ``model`` is moved there
         (None: a loaded model stays where it is, a named one runs on the CPU)
@@ -44,6 +47,8 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     settings = get_preset(preset)
     if line_of_sight:
         settings = replace(settings, scan_sdf=replace(settings.scan_sdf, n_ray_freespace=LINE_OF_SIGHT_SAMPLES))
+    if free_axis:
+        settings = replace(settings, fit=replace(settings.fit, hold_axis=False))
     loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)
     if device is not None:
         loaded.to(device)

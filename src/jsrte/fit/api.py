@@ -16,6 +16,9 @@ from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decode import decode_mesh
 from jsrte.presets import FitSettings
 
+AXIS_PARAMETERS = frozenset({"psi", "rho"})
+"""The rotation axis's spherical angles: held in the known-axis mode."""
+
 
 def class_geometry(model: DeepSdfModel) -> ClassGeometry:
     """Canonical height and radius of the class: from the model metadata, else by decoding
@@ -33,14 +36,17 @@ def class_geometry(model: DeepSdfModel) -> ClassGeometry:
 
 def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
               inits: list[Init] | None = None, n_hypotheses: int | None = None,
-              fixed: frozenset[str] = frozenset(), seed: int = 0, progress: bool = False) -> FitResult:
+              fixed: frozenset[str] | None = None, seed: int = 0, progress: bool = False) -> FitResult:
     """Jointly estimate z and (s, R, t) for ``query``; returns the winning hypothesis.
 
     ``inits`` default to :func:`initial_hypotheses` (the θ grid). The winner is chosen by
     ``settings.selection``: F@5% of each surviving hypothesis's decoded surface against the
-    query's surface points (the paper), or the final loss.
+    query's surface points (the paper), or the final loss. ``fixed`` names the parameters held
+    at their start (default: ψ and ρ when the query knows its up axis and ``settings.hold_axis``).
     """
     started = time.perf_counter()
+    if fixed is None:
+        fixed = AXIS_PARAMETERS if settings.hold_axis and query.up is not None else frozenset()
     decoder = model.decoder
     generator = torch.Generator().manual_seed(seed)
     if inits is None:
@@ -60,6 +66,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         loss=float(result.losses[winner]), criterion=criterion, angles=result.batch.angles(winner),
         hypotheses=reports, timing=timing,
         info={"decoder_evaluations": result.evaluations, "iterations": result.iterations,
+              "fixed_parameters": sorted(fixed),
               "winner_hypothesis": int(result.survivors[winner])},
     )
 

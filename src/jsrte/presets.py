@@ -57,6 +57,11 @@ LINE_OF_SIGHT_SAMPLES = 25_000
 """``ScanSdf.n_ray_freespace`` with line-of-sight free space switched on."""
 
 
+def with_line_of_sight(settings: ScanSdf) -> ScanSdf:
+    """``settings`` with line-of-sight free-space samples switched on (``--line-of-sight``)."""
+    return replace(settings, n_ray_freespace=LINE_OF_SIGHT_SAMPLES)
+
+
 @dataclass(frozen=True)
 class FitSettings:
     """The JSRTE optimization (paper eq. 6, Algorithm 1, supplementary 'Optimization Parameters')."""

@@ -121,16 +121,14 @@ def prepare_command(
 ) -> None:
     """Preprocess a scan once into the fit's SDF query (floor, outliers, normals, samples): fit it
     later or on another machine (a GPU box without Open3D) with `jsrte fit QUERY.npz`."""
-    from dataclasses import replace
-
     from jsrte.fit.query import load_query, save_query
-    from jsrte.presets import LINE_OF_SIGHT_SAMPLES, ScanSdf
+    from jsrte.presets import ScanSdf, with_line_of_sight
 
     if out.suffix.lower() != ".npz":
         raise JsrteError("the query file must end in .npz", out)
     if out.exists() and not overwrite:
         raise JsrteError("already exists; pass --overwrite to replace it", out)
-    settings = replace(ScanSdf(), n_ray_freespace=LINE_OF_SIGHT_SAMPLES) if line_of_sight else ScanSdf()
+    settings = with_line_of_sight(ScanSdf()) if line_of_sight else ScanSdf()
     query = load_query(scan, rng=np.random.default_rng(seed), up=parse_vector(up), viewpoints=parse_points(viewpoint),
                        scan_settings=settings)
     query.info["source"] = scan.name

@@ -42,11 +42,11 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     from jsrte.fit.query import load_query
     from jsrte.model.decoder import decoder_device
     from jsrte.model.registry import resolve_model
-    from jsrte.presets import LINE_OF_SIGHT_SAMPLES, get_preset
+    from jsrte.presets import get_preset, with_line_of_sight
 
     settings = get_preset(preset)
     if line_of_sight:
-        settings = replace(settings, scan_sdf=replace(settings.scan_sdf, n_ray_freespace=LINE_OF_SIGHT_SAMPLES))
+        settings = replace(settings, scan_sdf=with_line_of_sight(settings.scan_sdf))
     if free_axis:
         settings = replace(settings, fit=replace(settings.fit, hold_axis=False))
     loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)

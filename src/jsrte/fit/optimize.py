@@ -100,17 +100,17 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     survivors = np.arange(len(inits))
     pruned: dict[int, float] = {}
     optimizer = _adam(batch, settings.lr)
-    recent = torch.zeros(len(inits), dtype=torch.float64)
+    recent = torch.zeros(len(inits), dtype=torch.float64, device=device)  # running loss, kept on the device
     evaluations = 0
     for it in tqdm(range(settings.iterations), desc="fitting", disable=not progress):
         if settings.prune_after is not None and it == settings.prune_after and len(batch) > settings.prune_keep:
-            keep = torch.argsort(recent)[: settings.prune_keep]
+            keep = torch.argsort(recent.cpu())[: settings.prune_keep]
             for i in range(len(batch)):
                 if i not in keep.tolist():
                     pruned[int(survivors[i])] = float(recent[i])
             batch.keep(keep)
             survivors = survivors[keep.numpy()]
-            recent = recent[keep]
+            recent = recent[keep.to(device)]
             optimizer = _adam(batch, learning_rate(settings, it))
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(settings, it)
@@ -122,7 +122,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         losses.sum().backward()
         optimizer.step()
         batch.clamp_scale(settings.scale_min, settings.scale_max)
-        current = losses.detach().double().cpu()
+        current = losses.detach().double()
         recent = 0.8 * recent + 0.2 * current if it else current
         evaluations += len(batch) * len(idx)
     final = _final_losses(decoder, batch, points, sdf, settings, clamp, generator)

@@ -10,6 +10,7 @@ scanner, as ``jsrte experiment scans`` does, preprocesses each into a query file
 (``jsrte prepare``) and pickles the truths. ``run`` fits every query with every preset (12 θ
 hypotheses, the shipped model) and writes ``DIR/presets.csv`` and ``DIR/presets.md``: F@5%
 against the complete true shape, rotation and scale errors, fit time and decoder evaluations.
+A stopped ``run`` resumes: the (scan, preset) pairs already in ``presets.csv`` are kept.
 """
 
 from __future__ import annotations
@@ -52,9 +53,12 @@ def run(args: argparse.Namespace) -> None:
     folder = Path(args.folder)
     truths = pickle.loads((folder / "truths.pkl").read_bytes())
     model = resolve_model(args.model).to(args.device)
-    rows = []
+    rows = read_rows(folder / "presets.csv")
+    done = {(r["scan"], r["preset"]) for r in rows}
     for preset in args.presets.split(","):  # preset by preset: a run stopped early still pairs scans
         for name, truth in sorted(truths.items())[: args.scans]:
+            if (name, preset) in done:  # resumed: a stopped run keeps what it finished
+                continue
             if args.device.startswith("cuda"):
                 torch.cuda.synchronize()
             started = time.perf_counter()
@@ -67,6 +71,14 @@ def run(args: argparse.Namespace) -> None:
                          "decoder_evaluations": result.info["decoder_evaluations"]})
             print(rows[-1], flush=True)
             write(rows, folder, device=args.device, model=model.name, threads=torch.get_num_threads())
+
+
+def read_rows(path: Path) -> list[dict]:
+    """Rows a previous run wrote (numbers parsed), or none."""
+    if not path.exists():
+        return []
+    with open(path, newline="") as f:
+        return [{k: v if k in ("scan", "preset") else float(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
 
 def write(rows: list[dict], folder: Path, *, device: str, model: str, threads: int) -> None:

@@ -31,3 +31,15 @@ class LShapeDecoder(nn.Module):
         back = box_sdf(points, (0.0, 0.25, 0.25), (0.35, 0.4, 0.06))
         leg = box_sdf(points, (0.25, -0.55, -0.2), (0.05, 0.3, 0.05))
         return torch.minimum(torch.minimum(seat, back), leg)
+
+
+class SphereDecoder(nn.Module):
+    """f(x, z) = |x| − (r0 + z_0 + z_1): a sphere whose radius two latent directions change alike."""
+
+    def __init__(self, r0: float = 0.5) -> None:
+        super().__init__()
+        self.r0 = r0
+        self.config = DecoderConfig(latent_size=2, hidden=8, depth=2, skip_layer=1)
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        return points.norm(dim=-1) - (self.r0 + codes[:, 0] + codes[:, 1])

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 import trimesh
 
+from jsrte.fit.api import latent_prior
 from jsrte.fit.optimize import SdfQuery, optimize
 from jsrte.fit.params import Init
 from jsrte.fit.query import query_from_mesh
@@ -220,7 +221,8 @@ def fit_hypotheses(model: DeepSdfModel, query: SdfQuery, inits: list[Init], sett
     """
     settings = replace(settings, prune_after=None)
     generator = torch.Generator().manual_seed(seed)
-    result = optimize(model.decoder, query, inits, settings, fixed=fixed, generator=generator)
+    result = optimize(model.decoder, query, inits, settings, fixed=fixed, generator=generator,
+                      prior=latent_prior(model, settings))
     resolution = resolution or settings.selection_resolution
     outcomes = []
     for h in range(len(inits)):

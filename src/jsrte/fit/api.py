@@ -7,9 +7,10 @@ import time
 import numpy as np
 import torch
 
+from jsrte.fit.floor import with_below_floor_samples
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
 from jsrte.fit.optimize import Optimized, SdfQuery, optimize
-from jsrte.fit.params import Init
+from jsrte.fit.params import Init, LatentPrior
 from jsrte.fit.result import FitResult, HypothesisReport
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel
@@ -34,6 +35,15 @@ def class_geometry(model: DeepSdfModel) -> ClassGeometry:
     return ClassGeometry(height=float(meta["canonical_height"]), radius=float(meta["canonical_radius"]))
 
 
+def latent_prior(model: DeepSdfModel, settings: FitSettings) -> LatentPrior | None:
+    """The training codes' Gaussian when ``settings.latent_space`` is "whitened", else None."""
+    if settings.latent_space == "raw":
+        return None
+    if settings.latent_space != "whitened":
+        raise ValueError(f"unknown latent_space {settings.latent_space!r}; known: raw, whitened")
+    return LatentPrior.of_codes(model.codes.detach().cpu().numpy(), shrinkage=settings.latent_prior_shrinkage)
+
+
 def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
               inits: list[Init] | None = None, n_hypotheses: int | None = None,
               fixed: frozenset[str] | None = None, seed: int = 0, progress: bool = False) -> FitResult:
@@ -51,7 +61,13 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     generator = torch.Generator().manual_seed(seed)
     if inits is None:
         inits = initial_hypotheses(query, class_geometry(model), settings, n_hypotheses=n_hypotheses)
-    result = optimize(decoder, query, inits, settings, fixed=fixed, generator=generator, progress=progress)
+    n_query = len(query.sdf)
+    if settings.below_floor_samples and settings.clamp_canonical is not None:
+        clamp = settings.clamp_canonical * float(np.median([i.scale for i in inits]))
+        query = with_below_floor_samples(query, settings.below_floor_samples, clamp=clamp,
+                                         rng=np.random.default_rng(seed))
+    result = optimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
+                      prior=latent_prior(model, settings), progress=progress)
     t_opt = time.perf_counter() - started
     reports = _reports(result, inits)
     winner, criterion = _select(model, query, result, reports, settings, seed)
@@ -66,7 +82,8 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         loss=float(result.losses[winner]), criterion=criterion, angles=result.batch.angles(winner),
         hypotheses=reports, timing=timing,
         info={"decoder_evaluations": result.evaluations, "iterations": result.iterations,
-              "fixed_parameters": sorted(fixed),
+              "fixed_parameters": sorted(fixed), "below_floor_samples": len(query.sdf) - n_query,
+              "latent_space": settings.latent_space,
               "winner_hypothesis": int(result.survivors[winner])},
     )
 

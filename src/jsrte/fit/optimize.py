@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from jsrte.fit.params import HypothesisBatch, Init
+from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
 from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.presets import FitSettings
 
@@ -63,9 +63,10 @@ def learning_rate(settings: FitSettings, iteration: int) -> float:
 
 def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
                       *, clamp: float | None, latent_penalty: float) -> torch.Tensor:
-    """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖z‖².
+    """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖code‖².
 
-    ``points`` (K, 3) and ``sdf`` (K,) in scan units, shared by all hypotheses.
+    ``points`` (K, 3) and ``sdf`` (K,) in scan units, shared by all hypotheses; the code is z
+    (the paper) or the whitened w of a :class:`LatentPrior`.
     """
     h, k = len(batch), points.shape[0]
     canonical = batch.to_canonical(points).to(torch.float32)  # (H, K, 3)
@@ -76,13 +77,17 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
     if clamp is not None:
         pred, target = pred.clamp(-clamp, clamp), target.clamp(-clamp, clamp)
     data_term = (pred - target).abs().mean(dim=1)
-    return data_term + latent_penalty * batch.latent.to(torch.float32).pow(2).sum(dim=1)
+    return data_term + latent_penalty * batch.code.to(torch.float32).pow(2).sum(dim=1)
 
 
 def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
              fixed: frozenset[str] = frozenset(), generator: torch.Generator,
-             progress: bool = False) -> Optimized:
+             prior: LatentPrior | None = None, progress: bool = False) -> Optimized:
     """Run Adam on all hypotheses as one batch; prune to ``prune_keep`` after ``prune_after``.
+
+    With a ``prior`` the whitened code is optimized and its penalty is λ s0 ‖w‖² (s0 the
+    median initial scale: the data term is in scan units, so the balance does not depend on
+    the object's size); without, λ‖z‖² as the paper.
 
     Runs on the decoder's device (``generator`` is a CPU generator: sample indices are drawn on
     the CPU, so a seed gives the same draws on every device).
@@ -92,9 +97,10 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     decoder.requires_grad_(False)
     device = decoder_device(decoder)
     batch = HypothesisBatch(inits, decoder.config.latent_size, latent_init_std=settings.latent_init_std,
-                            fixed=fixed, generator=generator).to(device)
-    clamp = None if settings.clamp_canonical is None else settings.clamp_canonical * float(
-        np.median([i.scale for i in inits]))
+                            fixed=fixed, generator=generator, prior=prior).to(device)
+    s0 = float(np.median([i.scale for i in inits]))
+    clamp = None if settings.clamp_canonical is None else settings.clamp_canonical * s0
+    penalty = settings.latent_penalty * (s0 if prior is not None else 1.0)
     points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
     sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
     survivors = np.arange(len(inits))
@@ -116,8 +122,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
             group["lr"] = learning_rate(settings, it)
         pool = _sample_pool(query, settings, it)
         idx = torch.randint(pool, (min(settings.samples_per_iteration, pool),), generator=generator).to(device)
-        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp,
-                                   latent_penalty=settings.latent_penalty)
+        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty)
         optimizer.zero_grad(set_to_none=True)
         losses.sum().backward()
         optimizer.step()
@@ -125,7 +130,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         current = losses.detach().double()
         recent = 0.8 * recent + 0.2 * current if it else current
         evaluations += len(batch) * len(idx)
-    final = _final_losses(decoder, batch, points, sdf, settings, clamp, generator)
+    final = _final_losses(decoder, batch, points, sdf, settings, clamp, penalty, generator)
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
     return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
                      time.perf_counter() - start)
@@ -147,10 +152,10 @@ def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:
 
 
 def _final_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
-                  settings: FitSettings, clamp: float | None, generator: torch.Generator) -> np.ndarray:
+                  settings: FitSettings, clamp: float | None, penalty: float,
+                  generator: torch.Generator) -> np.ndarray:
     n = min(settings.eval_samples, len(sdf))
     idx = torch.randperm(len(sdf), generator=generator)[:n].to(sdf.device)
     with torch.no_grad():
-        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp,
-                                   latent_penalty=settings.latent_penalty)
+        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty)
     return losses.double().cpu().numpy()

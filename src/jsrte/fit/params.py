@@ -19,6 +19,40 @@ PARAMETER_NAMES = ("scale", "psi", "rho", "theta", "translation", "latent")
 
 
 @dataclass(frozen=True)
+class LatentPrior:
+    """The Gaussian of a model's training codes, z = mean + factor @ w with w ~ N(0, I).
+
+    Optimizing the whitened code w instead of z (``FitSettings.latent_space = "whitened"``)
+    gives Adam steps in units of each principal direction's spread, and ‖w‖² is the
+    Mahalanobis distance to the training codes: a code cannot drift along directions the
+    training shapes never varied in, where the decoder's output is arbitrary.
+
+    Attributes
+    ----------
+    mean : (d,) float64, the training codes' mean
+    factor : (d, d) float64, lower-triangular Cholesky factor of their covariance plus
+        ``shrinkage`` times its mean eigenvalue on the diagonal
+    """
+
+    mean: np.ndarray
+    factor: np.ndarray
+
+    @classmethod
+    def of_codes(cls, codes: np.ndarray, *, shrinkage: float) -> LatentPrior:
+        """Fit to ``codes`` (n, d); ``shrinkage`` > 0 keeps the factor invertible."""
+        codes = np.asarray(codes, dtype=np.float64)
+        d = codes.shape[1]
+        cov = np.cov(codes.T).reshape(d, d) if len(codes) > 1 else np.zeros((d, d))
+        spread = float(np.trace(cov)) / d
+        cov += shrinkage * (spread if spread > 0 else 1.0) * np.eye(d)  # one code: an isotropic prior
+        return cls(codes.mean(0), np.linalg.cholesky(cov))
+
+    def whiten(self, latent: np.ndarray) -> np.ndarray:
+        """w (d,) with ``latent`` = mean + factor @ w."""
+        return np.linalg.solve(self.factor, np.asarray(latent, dtype=np.float64) - self.mean)
+
+
+@dataclass(frozen=True)
 class Init:
     """One starting point (scan units: metres, radians).
 
@@ -41,10 +75,15 @@ class Init:
 
 
 class HypothesisBatch(torch.nn.Module):
-    """Parameters (H, ...) of H hypotheses; ``fixed`` names are not optimized."""
+    """Parameters (H, ...) of H hypotheses; ``fixed`` names are not optimized.
+
+    The latent is optimized as ``code`` (H, d): z itself (the paper), or with a ``prior`` the
+    whitened w, z = prior.mean + prior.factor @ w. z0 draws ``code`` from N(0, std²).
+    """
 
     def __init__(self, inits: list[Init], latent_size: int, *, latent_init_std: float,
-                 fixed: frozenset[str] = frozenset(), generator: torch.Generator | None = None) -> None:
+                 fixed: frozenset[str] = frozenset(), generator: torch.Generator | None = None,
+                 prior: LatentPrior | None = None) -> None:
         super().__init__()
         unknown = set(fixed) - set(PARAMETER_NAMES)
         if unknown:
@@ -63,13 +102,22 @@ class HypothesisBatch(torch.nn.Module):
         z = torch.randn(len(inits), latent_size, generator=generator, dtype=f64) * latent_init_std
         for h, init in enumerate(inits):
             if init.latent is not None:
-                z[h] = torch.as_tensor(init.latent, dtype=f64)
-        self.latent = torch.nn.Parameter(z, requires_grad="latent" not in fixed)
+                z[h] = torch.as_tensor(init.latent if prior is None else prior.whiten(init.latent), dtype=f64)
+        self.code = torch.nn.Parameter(z, requires_grad="latent" not in fixed)
+        self.register_buffer("prior_mean", None if prior is None else torch.as_tensor(prior.mean, dtype=f64))
+        self.register_buffer("prior_factor", None if prior is None else torch.as_tensor(prior.factor, dtype=f64))
         base = [np.eye(3) if i.base_rotation is None else np.asarray(i.base_rotation, float) for i in inits]
         self.register_buffer("base_rotation", torch.tensor(np.array(base), dtype=f64))
 
     def __len__(self) -> int:
         return int(self.scale.shape[0])
+
+    @property
+    def latent(self) -> torch.Tensor:
+        """z (H, d) of every hypothesis (differentiable)."""
+        if self.prior_mean is None:
+            return self.code
+        return self.prior_mean + self.code @ self.prior_factor.T
 
     def rotation(self) -> torch.Tensor:
         """R (H, 3, 3) = R(ψ, ρ, θ) @ base."""
@@ -87,7 +135,7 @@ class HypothesisBatch(torch.nn.Module):
 
     def keep(self, index: torch.Tensor) -> None:
         """Keep only hypotheses ``index`` (pruning); optimizer state must be rebuilt after."""
-        for name in ("scale", "psi", "rho", "theta", "translation", "latent"):
+        for name in ("scale", "psi", "rho", "theta", "translation", "code"):
             old = getattr(self, name)
             kept = old.detach()[index.to(old.device)].clone()
             setattr(self, name, torch.nn.Parameter(kept, requires_grad=old.requires_grad))

@@ -31,7 +31,7 @@ def prepare(args: argparse.Namespace) -> None:
     from jsrte.fit.query import load_query, save_query
 
     out = Path(args.out)
-    cases = virtual_cases(args.category, args.scans, out / "scans", seed=args.seed)
+    cases = virtual_cases(args.category, args.scans, out / "scans", seed=args.seed, first=args.first_shape)
     truths = {}
     for case in cases:
         query = load_query(case.path, rng=np.random.default_rng(args.seed))
@@ -113,7 +113,9 @@ def main() -> None:
     p = sub.add_parser("prepare")
     p.add_argument("--scans", type=int, default=5)
     p.add_argument("--category", default="chair")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="Scan seed (poses, noise).")
+    p.add_argument("--first-shape", type=int, default=0,
+                   help="First held-out shape index (Table 2 uses 0..29; the tuning set 100..119).")
     p.add_argument("--out", required=True)
     r = sub.add_parser("run")
     r.add_argument("folder")

@@ -38,15 +38,16 @@ class ScanCase:
     info: dict = field(default_factory=dict)
 
 
-def virtual_cases(category: str, n: int, folder: Path, *, seed: int = 0) -> list[ScanCase]:
-    """Scan ``n`` held-out shapes of ``category`` into ``folder`` (scan_000.ply + .json)."""
+def virtual_cases(category: str, n: int, folder: Path, *, seed: int = 0, first: int = 0) -> list[ScanCase]:
+    """Scan ``n`` held-out shapes of ``category`` (evaluation set indices ``first``...) into
+    ``folder`` (scan_000.ply + .json)."""
     from jsrte.experiments.truth import truth_of
     from jsrte.geometry.mesh import save_mesh
     from jsrte.scans.scanner import scan_mesh, write_scan
     from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 
     cases = []
-    for i in range(n):
+    for i in range(first, first + n):
         shape = generate_shape(category, shape_seed(EVAL_SET_SEED, i))
         scan = scan_mesh(shape.mesh, rng=np.random.default_rng(seed * 100_003 + i))
         mesh_path = folder / f"{category}_{i:03d}_true_mesh_frame.ply"

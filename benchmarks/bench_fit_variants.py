@@ -1,0 +1,85 @@
+"""Fit settings variants on prepared scans: F@5% against the complete true shape, time, evaluations.
+
+How the session-4 defaults were chosen (docs/presets.md). First make the query files with
+``bench_presets.py prepare`` (held-out chairs; the tuning set is shapes 100..119, scan seed 5,
+which Table 2 (shapes 0..29) does not use), then run variants of the ``fast`` fit settings::
+
+    .venv/bin/python benchmarks/bench_presets.py prepare --first-shape 100 --scans 20 --seed 5 --out runs/tune
+    .venv/bin/python benchmarks/bench_fit_variants.py runs/tune --out runs/tune/raw.csv latent_space=raw
+
+Each ``KEY=VALUE`` replaces a field of ``jsrte.presets.FAST.fit`` (numbers and booleans as JSON).
+Rows are written as they finish; the mean is printed at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import pickle
+import statistics
+import time
+from dataclasses import replace
+from pathlib import Path
+
+
+def settings_from(pairs: list[str]):
+    from jsrte.presets import FAST
+
+    changes = {}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        try:
+            changes[key] = json.loads(value)
+        except json.JSONDecodeError:
+            changes[key] = value
+    return replace(FAST.fit, **changes)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folder", help="A bench_presets.py prepare folder.")
+    parser.add_argument("--out", required=True, help="CSV of per-scan rows.")
+    parser.add_argument("--model", default="chair")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("changes", nargs="*", help="KEY=VALUE fields of FitSettings.")
+    args = parser.parse_intermixed_args()
+
+    import numpy as np
+    import torch
+
+    from jsrte.experiments.truth import score_against_truth
+    from jsrte.fit.api import fit_query
+    from jsrte.fit.query import read_query_file
+    from jsrte.model.registry import resolve_model
+
+    torch.set_num_threads(args.threads)
+    settings = settings_from(args.changes)
+    folder = Path(args.folder)
+    truths = pickle.loads((folder / "truths.pkl").read_bytes())
+    model = resolve_model(args.model)
+    rows = []
+    for name, truth in sorted(truths.items()):
+        query = read_query_file(folder / f"{name}.npz")
+        started = time.perf_counter()
+        result = fit_query(model, query, settings, seed=args.seed)
+        seconds = time.perf_counter() - started
+        score = score_against_truth(result, truth, rng=np.random.default_rng(args.seed))
+        rows.append({"scan": name, "fscore": round(score["fscore"], 4),
+                     "rotation_error_deg": round(score["rotation_error_deg"], 2),
+                     "scale_error_rel": round(score["scale_error_rel"], 4), "seconds": round(seconds, 1),
+                     "decoder_evaluations": result.info["decoder_evaluations"],
+                     "criterion": round(result.criterion["value"], 4)})
+        print(rows[-1], flush=True)
+        with open(args.out, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    scores = [r["fscore"] for r in rows]
+    print(f"{len(rows)} scans: mean F@5% {statistics.mean(scores):.3f}, median {statistics.median(scores):.3f}; "
+          f"settings changed: {args.changes or 'none'}")
+
+
+if __name__ == "__main__":
+    main()

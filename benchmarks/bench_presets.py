@@ -52,6 +52,10 @@ def run(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
     folder = Path(args.folder)
     truths = pickle.loads((folder / "truths.pkl").read_bytes())
+    missing = sorted(name for name in truths if not (folder / f"{name}.npz").exists())
+    if missing:
+        print(f"no query file for {', '.join(missing)}: skipped", flush=True)
+        truths = {name: truth for name, truth in truths.items() if name not in missing}
     model = resolve_model(args.model).to(args.device)
     rows = read_rows(folder / "presets.csv")
     done = {(r["scan"], r["preset"]) for r in rows}

@@ -9,7 +9,7 @@ import torch
 
 from jsrte.fit.floor import with_below_floor_samples
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
-from jsrte.fit.optimize import Optimized, SdfQuery, optimize
+from jsrte.fit.optimize import Optimized, SdfQuery, loss_clamp, optimize
 from jsrte.fit.params import Init, LatentPrior
 from jsrte.fit.result import FitResult, HypothesisReport
 from jsrte.metrics.surface import bounding_sphere, fscore
@@ -62,8 +62,8 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     if inits is None:
         inits = initial_hypotheses(query, class_geometry(model), settings, n_hypotheses=n_hypotheses)
     n_query = len(query.sdf)
-    if settings.below_floor_samples and settings.clamp_canonical is not None:
-        clamp = settings.clamp_canonical * float(np.median([i.scale for i in inits]))
+    clamp = loss_clamp(settings, inits)
+    if settings.below_floor_samples and clamp is not None:
         query = with_below_floor_samples(query, settings.below_floor_samples, clamp=clamp,
                                          rng=np.random.default_rng(seed))
     result = optimize(decoder, query, inits, settings, fixed=fixed, generator=generator,

@@ -61,6 +61,14 @@ def learning_rate(settings: FitSettings, iteration: int) -> float:
     return settings.lr / settings.lr_decay_factor ** (iteration // settings.lr_decay_every)
 
 
+def loss_clamp(settings: FitSettings, inits: list[Init]) -> float | None:
+    """The loss's clamp in scan units: ``clamp_canonical`` times the median initial scale s0
+    (fixed during the fit); None without a clamp."""
+    if settings.clamp_canonical is None:
+        return None
+    return settings.clamp_canonical * float(np.median([i.scale for i in inits]))
+
+
 def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
                       *, clamp: float | None, latent_penalty: float) -> torch.Tensor:
     """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖code‖².
@@ -98,8 +106,8 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     device = decoder_device(decoder)
     batch = HypothesisBatch(inits, decoder.config.latent_size, latent_init_std=settings.latent_init_std,
                             fixed=fixed, generator=generator, prior=prior).to(device)
+    clamp = loss_clamp(settings, inits)
     s0 = float(np.median([i.scale for i in inits]))
-    clamp = None if settings.clamp_canonical is None else settings.clamp_canonical * s0
     penalty = settings.latent_penalty * (s0 if prior is not None else 1.0)
     points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
     sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)

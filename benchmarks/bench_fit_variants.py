@@ -61,6 +61,9 @@ def main() -> None:
     model = resolve_model(args.model)
     rows = []
     for name, truth in sorted(truths.items()):
+        if not (folder / f"{name}.npz").exists():
+            print(f"no query file for {name}: skipped", flush=True)
+            continue
         query = read_query_file(folder / f"{name}.npz")
         started = time.perf_counter()
         result = fit_query(model, query, settings, seed=args.seed)

@@ -9,7 +9,7 @@ import torch
 from analytic import LShapeDecoder
 from jsrte.fit.api import fit_query
 from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
-from jsrte.fit.optimize import SdfQuery, optimize
+from jsrte.fit.optimize import SampleDrawer, SdfQuery, optimize
 from jsrte.fit.params import HypothesisBatch, Init
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
@@ -88,7 +88,7 @@ def test_fixed_parameters_do_not_move_and_scale_stays_in_bounds(lshape, lshape_m
     batch = out.batch
     assert float(batch.psi[0]) == psi and float(batch.rho[0]) == rho
     np.testing.assert_array_equal(batch.translation[0].detach().numpy(), truth.t)
-    assert 0.01 <= float(batch.scale[0]) <= 0.05
+    assert 0.01 <= float(batch.scale[0].detach()) <= 0.05
 
 
 def test_initialization_from_floor_and_height(lshape_mesh):
@@ -148,3 +148,37 @@ def test_known_up_axis_is_held_unless_freed(lshape, lshape_mesh):
     np.testing.assert_allclose(held.transform.R @ [0.0, 1.0, 0.0], query.up, atol=1e-9)
     moved = np.degrees(np.arccos(np.clip(free.transform.R @ [0.0, 1.0, 0.0] @ query.up, -1.0, 1.0)))
     assert moved > 0.5  # free, the axis leaves the wrong floor normal towards the truth
+
+
+def test_two_stage_pruning_keeps_the_lowest_running_losses(lshape, lshape_mesh):
+    """12 θ starts, 4 kept after 10 iterations, 2 after 25: the right yaw survives both, and the
+    decoder evaluations count 12, then 4, then 2 hypotheses."""
+    truth, up = tilted_truth(theta=-1.3)
+    query = make_query(lshape_mesh, truth, up, np.random.default_rng(2))
+    settings = replace(SETTINGS, iterations=60, prune_after=10, prune_keep=4, prune_again_after=25,
+                       prune_again_keep=2)
+    result = fit_query(lshape, query, settings, seed=0)
+    pruned = [h for h in result.hypotheses if h.pruned]
+    assert len(pruned) == 10 and sum(not h.pruned for h in result.hypotheses) == 2
+    assert rotation_angle_deg(result.transform.R, truth.R) < 5.0
+    assert result.info["decoder_evaluations"] == (10 * 12 + 15 * 4 + 35 * 2) * 1500 + 2 * min(
+        settings.eval_samples, len(query.sdf) + result.info["below_floor_samples"])
+
+
+def test_sample_drawer_enriches_the_samples_under_the_clamp():
+    """With a near share of 0.5, half of each draw has |φ| under the clamp (10% of the pool);
+    uniform draws (no share, or before ``near_sample_from``) keep the pool's 10%; the
+    refine-only tail beyond ``pool`` is never drawn."""
+    sdf = np.where(np.arange(10_000) % 10 == 0, 0.01, 0.5)
+    sdf[9_000:] = -0.001  # the tail: all under the clamp, outside the pool below
+
+    def near_share(share: float | None, *, enriched: bool = True) -> float:
+        drawer = SampleDrawer(sdf, near_share=share, clamp=0.1, generator=torch.Generator().manual_seed(0))
+        idx = drawer.draw(9_000, 20_000, enriched=enriched).numpy()
+        assert len(idx) == 9_000 and idx.max() < 9_000
+        return float(np.mean(np.abs(sdf[idx]) < 0.1))
+
+    assert near_share(0.5) == pytest.approx(0.5, abs=1e-3)
+    assert near_share(None) == pytest.approx(0.1, abs=0.02)
+    assert near_share(0.5, enriched=False) == pytest.approx(0.1, abs=0.02)
+    assert near_share(0.05) == pytest.approx(0.1, abs=0.02)  # never below the pool's own share

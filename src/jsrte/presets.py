@@ -95,6 +95,9 @@ class FitSettings:
     prune_after: int | None = None
     """Keep only ``prune_keep`` hypotheses (lowest loss) after this many iterations; None: never."""
     prune_keep: int = 3
+    prune_again_after: int | None = None
+    """A second pruning, to ``prune_again_keep``, after this many iterations; None: none."""
+    prune_again_keep: int = 2
     clamp_canonical: float | None = 0.1
     """Clamp predicted and target SDF at this distance in canonical units times the *initial*
     scale (a fixed distance in scan units, as DeepSDF's reconstruction clamps at 0.1); None: no
@@ -105,11 +108,18 @@ class FitSettings:
     partial scans)."""
     selection: str = "fscore"
     """Pick the winning hypothesis by "fscore" (the paper: F@5% of its decoded surface against
-    the query points) or by "loss"."""
+    the query points) or by "loss" (its final loss on ``eval_samples`` fixed samples: against a
+    partial scan F@5% favours shapes that hide the unseen side; docs/presets.md)."""
     selection_resolution: int = 64
     """Marching-cubes resolution of the surfaces decoded to score hypotheses."""
     eval_samples: int = 16_000
     """Samples on which the final losses of all hypotheses are compared."""
+    near_sample_share: float | None = None
+    """Beyond the paper: at least this share of every iteration's samples is drawn among those
+    whose |SDF| is under the clamp (a scan's ±1 cm samples; the freespace ones mostly lie
+    beyond it and only say "outside"); None: uniformly over all samples (the paper)."""
+    near_sample_from: int = 0
+    """Iterations before this one draw uniformly even with a ``near_sample_share``."""
     below_floor_samples: int = 0
     """Beyond the paper: samples under a known floor saying "outside" (fit.floor); 0: none."""
     fscore_points: int = 3000
@@ -132,12 +142,13 @@ PAPER = Preset(name="paper")
 FAST = Preset(
     name="fast",
     fit=FitSettings(iterations=160, samples_per_iteration=1500, lr_decay_every=100,
-                    prune_after=20, prune_keep=2, init_scale="height",
+                    prune_after=20, prune_keep=2, init_scale="height", selection="loss",
                     latent_space="whitened", latent_penalty=1e-4, below_floor_samples=2000),
 )
 """The default on a CPU: 5.3x fewer samples and 5x fewer iterations, yaw hypotheses pruned to
 the best two after 20 iterations, scale initialized from the object's height, the latent
-optimized in the training codes' whitened space (docs/presets.md)."""
+optimized in the training codes' whitened space, the winner picked by its final loss rather
+than by F@5% against a partial scan (docs/presets.md)."""
 
 SMOKE = Preset(
     name="smoke",

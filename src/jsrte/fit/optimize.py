@@ -61,6 +61,12 @@ def learning_rate(settings: FitSettings, iteration: int) -> float:
     return settings.lr / settings.lr_decay_factor ** (iteration // settings.lr_decay_every)
 
 
+def pruning_stages(settings: FitSettings) -> dict[int, int]:
+    """Iteration -> how many hypotheses (lowest running loss) to keep from it on."""
+    stages = {settings.prune_after: settings.prune_keep, settings.prune_again_after: settings.prune_again_keep}
+    return {it: keep for it, keep in stages.items() if it is not None}
+
+
 def loss_clamp(settings: FitSettings, inits: list[Init]) -> float | None:
     """The loss's clamp in scan units: ``clamp_canonical`` times the median initial scale s0
     (fixed during the fit); None without a clamp."""
@@ -91,7 +97,8 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
 def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
              fixed: frozenset[str] = frozenset(), generator: torch.Generator,
              prior: LatentPrior | None = None, progress: bool = False) -> Optimized:
-    """Run Adam on all hypotheses as one batch; prune to ``prune_keep`` after ``prune_after``.
+    """Run Adam on all hypotheses as one batch; prune to ``prune_keep`` after ``prune_after``
+    (and to ``prune_again_keep`` after ``prune_again_after``).
 
     With a ``prior`` the whitened code is optimized and its penalty is λ s0 ‖w‖² (s0 the
     median initial scale: the data term is in scan units, so the balance does not depend on
@@ -114,22 +121,23 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     survivors = np.arange(len(inits))
     pruned: dict[int, float] = {}
     optimizer = _adam(batch, settings.lr)
+    sampler = SampleDrawer(query.sdf, near_share=settings.near_sample_share, clamp=clamp, generator=generator)
     recent = torch.zeros(len(inits), dtype=torch.float64, device=device)  # running loss, kept on the device
     evaluations = 0
+    stages = pruning_stages(settings)
     for it in tqdm(range(settings.iterations), desc="fitting", disable=not progress):
-        if settings.prune_after is not None and it == settings.prune_after and len(batch) > settings.prune_keep:
-            keep = torch.argsort(recent.cpu())[: settings.prune_keep]
+        if it in stages and len(batch) > stages[it]:
+            keep = torch.argsort(recent.cpu())[: stages[it]]
             for i in range(len(batch)):
                 if i not in keep.tolist():
                     pruned[int(survivors[i])] = float(recent[i])
-            batch.keep(keep)
+            optimizer = _prune(batch, optimizer, keep)
             survivors = survivors[keep.numpy()]
             recent = recent[keep.to(device)]
-            optimizer = _adam(batch, learning_rate(settings, it))
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(settings, it)
-        pool = _sample_pool(query, settings, it)
-        idx = torch.randint(pool, (min(settings.samples_per_iteration, pool),), generator=generator).to(device)
+        idx = sampler.draw(_sample_pool(query, settings, it), settings.samples_per_iteration,
+                           enriched=it >= settings.near_sample_from).to(device)
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty)
         optimizer.zero_grad(set_to_none=True)
         losses.sum().backward()
@@ -144,12 +152,60 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
                      time.perf_counter() - start)
 
 
+class SampleDrawer:
+    """Draws each iteration's sample indices: uniformly over the pool (the paper), or with at
+    least ``near_share`` of them among the samples whose target is under the clamp.
+
+    A scan's query is mostly freespace (25 000 samples beyond the clamp, which only say
+    "outside"); the few thousand samples at ±1 cm along the normals are what place the surface.
+    ``pool``: draw from the first this many samples (the refine-only tail waits for pruning).
+    """
+
+    def __init__(self, sdf: np.ndarray, *, near_share: float | None, clamp: float | None,
+                 generator: torch.Generator) -> None:
+        self.near = None if near_share is None or clamp is None else np.abs(np.asarray(sdf)) < clamp
+        self.near_share = near_share
+        self.generator = generator
+        self._split: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def draw(self, pool: int, n: int, *, enriched: bool = True) -> torch.Tensor:
+        """(min(n, pool),) int64 indices into the query's samples (CPU); uniform unless ``enriched``."""
+        n = min(n, pool)
+        if self.near is None or not enriched:
+            return torch.randint(pool, (n,), generator=self.generator)
+        if pool not in self._split:
+            near = self.near[:pool]
+            self._split[pool] = (torch.from_numpy(np.flatnonzero(near)), torch.from_numpy(np.flatnonzero(~near)))
+        near, far = self._split[pool]
+        if not len(near) or not len(far):
+            return torch.randint(pool, (n,), generator=self.generator)
+        n_near = round(n * max(self.near_share, len(near) / pool))
+        pick = [group[torch.randint(len(group), (k,), generator=self.generator)]
+                for group, k in ((near, n_near), (far, n - n_near))]
+        return torch.cat(pick)
+
+
 def _sample_pool(query: SdfQuery, settings: FitSettings, iteration: int) -> int:
     """How many of the query's samples (from the start) iteration ``iteration`` draws from."""
     pruning_ahead = settings.prune_after is not None and iteration < settings.prune_after
     if pruning_ahead and query.n_refine_only < len(query.sdf):
         return len(query.sdf) - query.n_refine_only
     return len(query.sdf)
+
+
+def _prune(batch: HypothesisBatch, optimizer: torch.optim.Adam, keep: torch.Tensor) -> torch.optim.Adam:
+    """Keep hypotheses ``keep`` of ``batch``; returns an Adam over the kept parameters that goes
+    on with their moment estimates (a fresh Adam's first steps move every parameter by ~lr)."""
+    before = {name: optimizer.state.get(p, {}) for name, p in batch.named_parameters()}
+    batch.keep(keep)
+    pruned = _adam(batch, optimizer.param_groups[0]["lr"])
+    for name, p in batch.named_parameters():
+        state = before.get(name)
+        if state:
+            rows = keep.to(p.device)
+            pruned.state[p] = {"step": state["step"].clone(), "exp_avg": state["exp_avg"][rows].clone(),
+                               "exp_avg_sq": state["exp_avg_sq"][rows].clone()}
+    return pruned
 
 
 def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:

@@ -54,4 +54,4 @@ def test_a_shape_sunk_through_the_floor_costs_more(sink):
                              clamp=0.1, latent_penalty=0.0)
     assert (float(loss[0].detach()) == pytest.approx(0.0, abs=1e-7)) == (sink == 0.0)
     if sink:
-        assert float(loss[0]) > 1e-3  # the leg pokes through: samples inside it
+        assert float(loss[0].detach()) > 1e-3  # the leg pokes through: samples inside it

@@ -122,6 +122,8 @@ class FitSettings:
     """Iterations before this one draw uniformly even with a ``near_sample_share``."""
     below_floor_samples: int = 0
     """Beyond the paper: samples under a known floor saying "outside" (fit.floor); 0: none."""
+    below_floor_depth: tuple[float, float] = (1.5, 4.0)
+    """Their depth under the floor, in units of the loss's clamp (uniform in this range)."""
     fscore_points: int = 3000
     fscore_fraction: float = 0.05
     extract_resolution: int = 128

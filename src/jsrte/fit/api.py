@@ -65,7 +65,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     clamp = loss_clamp(settings, inits)
     if settings.below_floor_samples and clamp is not None:
         query = with_below_floor_samples(query, settings.below_floor_samples, clamp=clamp,
-                                         rng=np.random.default_rng(seed))
+                                         rng=np.random.default_rng(seed), depth=settings.below_floor_depth)
     result = optimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
                       prior=latent_prior(model, settings), progress=progress)
     t_opt = time.perf_counter() - started

@@ -2,7 +2,9 @@
 
 A scan's floor plane is removed before its SDF samples are built, and with it the knowledge
 that the object ends there: on sparse scans (legs barely seen) fits sank through the floor.
-Samples under the floor, below the object, say "outside, by at least the clamp".
+A point at depth d under the floor is at least d from an object standing on it, so samples
+under the floor carry their depth as a *lower bound* on the SDF: the loss counts only
+predictions that fall short of it (``SdfQuery.lower_bound``).
 """
 
 from __future__ import annotations
@@ -20,9 +22,9 @@ def with_below_floor_samples(query: SdfQuery, n: int, *, clamp: float, rng: np.r
 
     The samples lie in a disc of ``spread`` times the object's horizontal radius about its
     horizontal centre (from ``query.surface``), ``depth`` × ``clamp`` below the floor plane
-    (scan units). Their SDF is their depth: a lower bound on the true distance to an object
-    standing on the floor, and above the loss's clamp, so it only says "outside". They go
-    before the query's refine-only tail (line-of-sight samples).
+    (scan units). Their SDF is their depth, marked as a lower bound on the true distance to an
+    object standing on the floor (beyond the clamp it just says "outside"). They go before the
+    query's refine-only tail (line-of-sight samples).
     """
     if n <= 0 or query.up is None or query.floor_offset is None:
         return query
@@ -37,5 +39,7 @@ def with_below_floor_samples(query: SdfQuery, n: int, *, clamp: float, rng: np.r
     points = (centre + (r * np.cos(angle))[:, None] * basis[0] + (r * np.sin(angle))[:, None] * basis[1]
               + np.outer(query.floor_offset - below, up))
     split = len(query.sdf) - query.n_refine_only
+    lower = np.zeros(len(query.sdf), bool) if query.lower_bound is None else query.lower_bound
     return replace(query, points=np.concatenate([query.points[:split], points, query.points[split:]]),
-                   sdf=np.concatenate([query.sdf[:split], below, query.sdf[split:]]))
+                   sdf=np.concatenate([query.sdf[:split], below, query.sdf[split:]]),
+                   lower_bound=np.concatenate([lower[:split], np.ones(n, bool), lower[split:]]))

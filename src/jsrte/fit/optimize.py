@@ -29,6 +29,8 @@ class SdfQuery:
     floor_offset : float or None: the floor plane is {x : up·x = floor_offset}
     n_refine_only : the last this many samples (line-of-sight free space) are drawn only once
         the hypotheses are pruned: the yaw is decided on the paper's evidence, they shape the rest
+    lower_bound : (m,) bool or None: samples whose ``sdf`` is only a lower bound on the true SDF
+        (under the floor: fit.floor); the loss counts their predictions only where they fall short
     """
 
     points: np.ndarray
@@ -38,6 +40,7 @@ class SdfQuery:
     floor_offset: float | None = None
     info: dict = field(default_factory=dict)
     n_refine_only: int = 0
+    lower_bound: np.ndarray | None = None
 
 
 @dataclass
@@ -76,11 +79,13 @@ def loss_clamp(settings: FitSettings, inits: list[Init]) -> float | None:
 
 
 def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
-                      *, clamp: float | None, latent_penalty: float) -> torch.Tensor:
+                      *, clamp: float | None, latent_penalty: float,
+                      lower_bound: torch.Tensor | None = None) -> torch.Tensor:
     """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖code‖².
 
     ``points`` (K, 3) and ``sdf`` (K,) in scan units, shared by all hypotheses; the code is z
-    (the paper) or the whitened w of a :class:`LatentPrior`.
+    (the paper) or the whitened w of a :class:`LatentPrior`. Where ``lower_bound`` (K,) bool is
+    set, φ only bounds the true SDF from below: the term is max(0, clamp(φ) − clamp(s f)).
     """
     h, k = len(batch), points.shape[0]
     canonical = batch.to_canonical(points).to(torch.float32)  # (H, K, 3)
@@ -90,7 +95,10 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
     target = sdf.to(torch.float32)[None, :]
     if clamp is not None:
         pred, target = pred.clamp(-clamp, clamp), target.clamp(-clamp, clamp)
-    data_term = (pred - target).abs().mean(dim=1)
+    error = (pred - target).abs()
+    if lower_bound is not None:
+        error = torch.where(lower_bound[None, :], (target - pred).clamp(min=0.0), error)
+    data_term = error.mean(dim=1)
     return data_term + latent_penalty * batch.code.to(torch.float32).pow(2).sum(dim=1)
 
 
@@ -118,6 +126,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     penalty = settings.latent_penalty * (s0 if prior is not None else 1.0)
     points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
     sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
+    lower = None if query.lower_bound is None else torch.as_tensor(query.lower_bound, device=device)
     survivors = np.arange(len(inits))
     pruned: dict[int, float] = {}
     optimizer = _adam(batch, settings.lr)
@@ -138,7 +147,8 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
             group["lr"] = learning_rate(settings, it)
         idx = sampler.draw(_sample_pool(query, settings, it), settings.samples_per_iteration,
                            enriched=it >= settings.near_sample_from).to(device)
-        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty)
+        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
+                                   lower_bound=None if lower is None else lower[idx])
         optimizer.zero_grad(set_to_none=True)
         losses.sum().backward()
         optimizer.step()
@@ -146,7 +156,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         current = losses.detach().double()
         recent = 0.8 * recent + 0.2 * current if it else current
         evaluations += len(batch) * len(idx)
-    final = _final_losses(decoder, batch, points, sdf, settings, clamp, penalty, generator)
+    final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty, generator)
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
     return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
                      time.perf_counter() - start)
@@ -216,10 +226,11 @@ def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:
 
 
 def _final_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
-                  settings: FitSettings, clamp: float | None, penalty: float,
+                  lower: torch.Tensor | None, settings: FitSettings, clamp: float | None, penalty: float,
                   generator: torch.Generator) -> np.ndarray:
     n = min(settings.eval_samples, len(sdf))
     idx = torch.randperm(len(sdf), generator=generator)[:n].to(sdf.device)
     with torch.no_grad():
-        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty)
+        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
+                                   lower_bound=None if lower is None else lower[idx])
     return losses.double().cpu().numpy()

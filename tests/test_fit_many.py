@@ -211,8 +211,8 @@ def test_a_second_run_on_the_same_output_is_refused(tmp_path, scan_pool):
 
 def test_cli_fit_end_to_end_with_viewpoints(model_file, scan_pool, tmp_path, run_cli):
     """``jsrte fit`` on a scan: the files, ``--line-of-sight`` samples from the sidecar's cameras or
-    from ``--viewpoint`` (none without the flag), and one-line refusals of a bad viewpoint and of an
-    existing result."""
+    from ``--viewpoint`` (none without the flag in ``smoke``, none after ``--no-line-of-sight``),
+    and one-line refusals of a bad viewpoint and of an existing result."""
     scan = scan_pool[0][0]
     common = ["fit", str(scan), "--model", str(model_file), "--preset", "smoke", "--hypotheses", "2",
               "--no-progress", "--threads", "1", "--line-of-sight"]
@@ -236,4 +236,8 @@ def test_cli_fit_end_to_end_with_viewpoints(model_file, scan_pool, tmp_path, run
     out = tmp_path / "default"
     code, _, err = run_cli([*common[:-1], "--out", str(out)])
     assert code == 0, err
-    assert json.loads((out / "fit.json").read_text())["query"]["ray_freespace_samples"] == 0  # the paper's query
+    assert json.loads((out / "fit.json").read_text())["query"]["ray_freespace_samples"] == 0  # smoke: the paper's query
+    out = tmp_path / "off"
+    code, _, err = run_cli([*common, "--no-line-of-sight", "--out", str(out)])  # the last flag wins
+    assert code == 0, err
+    assert json.loads((out / "fit.json").read_text())["query"]["ray_freespace_samples"] == 0

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from jsrte.presets import ScanSdf
+from jsrte.presets import FAST, LINE_OF_SIGHT_SAMPLES, PAPER, ScanSdf, with_line_of_sight
 from jsrte.scans.io import ScanCloud
 from jsrte.scans.preprocess import prepare_scan
 from jsrte.scans.scanner import ScannerSettings, scan_mesh
@@ -94,6 +94,13 @@ def test_paper_defaults():
     settings = ScanSdf()
     assert (settings.surface_offset_m, settings.freespace_min_m, settings.freespace_max_m,
             settings.n_freespace) == (0.01, 0.07, 0.20, 25_000)
+
+
+@pytest.mark.parametrize("preset, flag, expected", [
+    (PAPER, None, 0), (PAPER, True, LINE_OF_SIGHT_SAMPLES), (FAST, None, LINE_OF_SIGHT_SAMPLES), (FAST, False, 0)])
+def test_line_of_sight_follows_the_preset_unless_asked(preset, flag, expected):
+    """``paper`` keeps the paper's query; ``fast`` adds line-of-sight free space; a flag overrides."""
+    assert with_line_of_sight(preset.scan_sdf, flag).n_ray_freespace == expected
 
 
 def test_samples_from_a_prepared_scan_agree_with_the_true_sdf():

@@ -39,10 +39,10 @@ class ScanSdf:
     """Freespace samples lie this far out along the outward normal (metres)."""
     n_freespace: int = 25_000
     n_ray_freespace: int = 0
-    """Beyond the paper, off by default: samples on the sensor's lines of sight, in front of what
-    each viewpoint saw (only when the viewpoints are known); ``jsrte fit --line-of-sight`` sets
-    LINE_OF_SIGHT_SAMPLES. Measured on 8 held-out chair scans they raised F@5% where the yaw
-    was right but flipped the yaw on 2 (docs/presets.md), so the default stays the paper's."""
+    """Beyond the paper (0 in ``paper``): samples on the sensor's lines of sight, in front of what
+    each viewpoint saw (only when the viewpoints are known); ``fast`` has LINE_OF_SIGHT_SAMPLES
+    (session 6: +0.018 mean F@5% on 20 held-out tuning scans with the near-floor bound, no yaw
+    flipped; docs/presets.md). ``jsrte fit --line-of-sight / --no-line-of-sight`` overrides."""
     ray_per_point: float = 3.0
     """At most this many ray samples per object point: a sparse scan (a far or small object)
     is not drowned in free-space evidence, which would let an empty shape win."""
@@ -57,9 +57,12 @@ LINE_OF_SIGHT_SAMPLES = 25_000
 """``ScanSdf.n_ray_freespace`` with line-of-sight free space switched on."""
 
 
-def with_line_of_sight(settings: ScanSdf) -> ScanSdf:
-    """``settings`` with line-of-sight free-space samples switched on (``--line-of-sight``)."""
-    return replace(settings, n_ray_freespace=LINE_OF_SIGHT_SAMPLES)
+def with_line_of_sight(settings: ScanSdf, on: bool | None = True) -> ScanSdf:
+    """``settings`` with line-of-sight free-space samples switched on (True), off (False), or as
+    they are (None: ``--line-of-sight`` / ``--no-line-of-sight`` / neither)."""
+    if on is None:
+        return settings
+    return replace(settings, n_ray_freespace=LINE_OF_SIGHT_SAMPLES if on else 0)
 
 
 @dataclass(frozen=True)
@@ -123,7 +126,8 @@ class FitSettings:
     below_floor_samples: int = 0
     """Beyond the paper: samples under a known floor saying "outside" (fit.floor); 0: none."""
     below_floor_depth: tuple[float, float] = (1.5, 4.0)
-    """Their depth under the floor, in units of the loss's clamp (uniform in this range)."""
+    """Their depth under the floor, in units of the loss's clamp (uniform in this range). Each
+    bounds the SDF from below (one-sided loss), so samples nearer than the clamp count too."""
     fscore_points: int = 3000
     fscore_fraction: float = 0.05
     extract_resolution: int = 128
@@ -143,14 +147,18 @@ PAPER = Preset(name="paper")
 
 FAST = Preset(
     name="fast",
+    scan_sdf=with_line_of_sight(ScanSdf()),
     fit=FitSettings(iterations=160, samples_per_iteration=1500, lr_decay_every=100,
                     prune_after=20, prune_keep=2, init_scale="height", selection="loss",
-                    latent_space="whitened", latent_penalty=1e-4, below_floor_samples=2000),
+                    latent_space="whitened", latent_penalty=1e-4, below_floor_samples=2000,
+                    below_floor_depth=(0.1, 4.0)),
 )
 """The default on a CPU: 5.3x fewer samples and 5x fewer iterations, yaw hypotheses pruned to
 the best two after 20 iterations, scale initialized from the object's height, the latent
 optimized in the training codes' whitened space, the winner picked by its final loss rather
-than by F@5% against a partial scan (docs/presets.md)."""
+than by F@5% against a partial scan; beyond the paper's samples, free space on the sensor's
+lines of sight (where the viewpoints are known) and depth bounds under the floor from just below
+it (docs/presets.md)."""
 
 SMOKE = Preset(
     name="smoke",

@@ -57,8 +57,9 @@ def fit_command(
         None, help="Sensor position X,Y,Z in the scan's frame (metres), repeatable; 0,0,0 for a depth "
                    "frame in camera coordinates. Default: the cameras of the scan's JSON sidecar, if any."),
     line_of_sight: bool = typer.Option(
-        False, "--line-of-sight", help="Add free-space samples on the lines of sight from the viewpoints "
-                                       "(beyond the paper; docs/presets.md)."),
+        None, "--line-of-sight/--no-line-of-sight",
+        help="Free-space samples on the lines of sight from the viewpoints (beyond the paper; default: the "
+             "preset's, on in fast, off in paper; docs/presets.md)."),
     free_axis: bool = typer.Option(
         False, "--free-axis", help="Let the rotation axis move away from the up axis (default: held at the "
                                    "floor normal / --up, the paper's known-axis mode)."),
@@ -115,20 +116,22 @@ def prepare_command(
     out: Path = typer.Option(..., "--out", help="Query file to write (.npz), for `jsrte fit QUERY.npz`."),
     up: str = typer.Option(None, help="Known up axis X,Y,Z (default: the floor normal; +y for meshes)."),
     viewpoint: list[str] = typer.Option(None, help="Sensor position X,Y,Z (metres), repeatable."),
-    line_of_sight: bool = typer.Option(False, "--line-of-sight", help="Add line-of-sight free-space samples."),
+    line_of_sight: bool = typer.Option(
+        None, "--line-of-sight/--no-line-of-sight",
+        help=f"Line-of-sight free-space samples (default: as the {DEFAULT_PRESET} preset)."),
     seed: int = typer.Option(0, help="Random seed."),
     overwrite: bool = typer.Option(False, help="Replace an existing query file."),
 ) -> None:
     """Preprocess a scan once into the fit's SDF query (floor, outliers, normals, samples): fit it
     later or on another machine (a GPU box without Open3D) with `jsrte fit QUERY.npz`."""
     from jsrte.fit.query import load_query, save_query
-    from jsrte.presets import ScanSdf, with_line_of_sight
+    from jsrte.presets import get_preset, with_line_of_sight
 
     if out.suffix.lower() != ".npz":
         raise JsrteError("the query file must end in .npz", out)
     if out.exists() and not overwrite:
         raise JsrteError("already exists; pass --overwrite to replace it", out)
-    settings = with_line_of_sight(ScanSdf()) if line_of_sight else ScanSdf()
+    settings = with_line_of_sight(get_preset(DEFAULT_PRESET).scan_sdf, line_of_sight)
     query = load_query(scan, rng=np.random.default_rng(seed), up=parse_vector(up), viewpoints=parse_points(viewpoint),
                        scan_settings=settings)
     query.info["source"] = scan.name

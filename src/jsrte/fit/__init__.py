@@ -15,7 +15,7 @@ from jsrte.model.checkpoint import DeepSdfModel
 
 
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
-        up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool = False,
+        up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool | None = None,
         free_axis: bool = False,
         hypotheses: int | None = None, seed: int = 0, progress: bool = False,
         device: str | torch.device | None = None) -> FitResult:
@@ -31,8 +31,9 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     up : (3,) the rotation axis if known; else the floor normal (scans) or +y (meshes)
     viewpoints : (k, 3) sensor positions of a scan (scan units), if known; default: the
         cameras of the scan's JSON sidecar (hidden-point removal, normal orientation)
-    line_of_sight : add free-space samples on the lines of sight from the viewpoints (beyond
-        the paper; off by default, see docs/presets.md)
+    line_of_sight : free-space samples on the lines of sight from the viewpoints (beyond the
+        paper): True adds them, False leaves them out, None follows the preset (``fast``: on,
+        ``paper``: off; docs/presets.md). Without viewpoints there are none either way
     free_axis : let the rotation axis move from the up axis too (default: held, the paper's
         known-axis mode, whenever the up axis is known)
     hypotheses : number of θ starts (default: every 30°, 12)
@@ -45,8 +46,7 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     from jsrte.presets import get_preset, with_line_of_sight
 
     settings = get_preset(preset)
-    if line_of_sight:
-        settings = replace(settings, scan_sdf=with_line_of_sight(settings.scan_sdf))
+    settings = replace(settings, scan_sdf=with_line_of_sight(settings.scan_sdf, line_of_sight))
     if free_axis:
         settings = replace(settings, fit=replace(settings.fit, hold_axis=False))
     loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)

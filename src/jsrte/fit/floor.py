@@ -14,10 +14,12 @@ from dataclasses import replace
 import numpy as np
 
 from jsrte.fit.optimize import SdfQuery
+from jsrte.presets import FitSettings
 
 
 def with_below_floor_samples(query: SdfQuery, n: int, *, clamp: float, rng: np.random.Generator,
-                             depth: tuple[float, float] = (1.5, 4.0), spread: float = 1.5) -> SdfQuery:
+                             depth: tuple[float, float] = FitSettings.below_floor_depth,
+                             spread: float = 1.5) -> SdfQuery:
     """``query`` plus ``n`` samples under its floor (unchanged without a floor or for ``n`` 0).
 
     The samples lie in a disc of ``spread`` times the object's horizontal radius about its

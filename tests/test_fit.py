@@ -114,14 +114,16 @@ def test_hypotheses_are_one_batch_not_a_loop(lshape):
     assert batch.latent.shape == (12, 4)
 
 
-def test_refine_only_samples_wait_until_the_hypotheses_are_pruned(lshape, lshape_mesh):
+@pytest.mark.parametrize("from_start", [False, True])
+def test_refine_only_samples_wait_until_the_hypotheses_are_pruned(lshape, lshape_mesh, from_start):
     """Line-of-sight samples (the query's last ``n_refine_only``) take no part in deciding which
-    yaw hypotheses survive: up to the pruning, a fit with them is the fit without them."""
+    yaw hypotheses survive: up to the pruning, a fit with them is the fit without them, unless
+    ``line_of_sight_before_pruning`` draws them from the start."""
     truth, up = tilted_truth(0.8)
     query = make_query(lshape_mesh, truth, up, np.random.default_rng(4))
     extra = truth.apply(np.random.default_rng(5).uniform(-0.4, 0.4, size=(3000, 3)))
     misleading = np.full(len(extra), -1.0)  # "inside" everywhere: would change every hypothesis
-    settings = replace(SETTINGS, iterations=SETTINGS.prune_after)
+    settings = replace(SETTINGS, iterations=SETTINGS.prune_after, line_of_sight_before_pruning=from_start)
     inits = initial_hypotheses(query, ClassGeometry(1.5, 0.95), settings, n_hypotheses=4)
 
     def run(n_refine_only: int) -> np.ndarray:
@@ -132,8 +134,8 @@ def test_refine_only_samples_wait_until_the_hypotheses_are_pruned(lshape, lshape
         return torch.cat([p.detach().flatten() for p in result.batch.parameters()]).numpy()
 
     without = run(-1)
-    assert np.array_equal(run(len(extra)), without)
-    assert not np.allclose(run(0), without)  # used from the start, they do change the fit
+    assert np.array_equal(run(len(extra)), without) != from_start
+    assert not np.allclose(run(0), without)  # in the main pool, they do change the fit
 
 
 def test_known_up_axis_is_held_unless_freed(lshape, lshape_mesh):

@@ -128,6 +128,12 @@ class FitSettings:
     below_floor_depth: tuple[float, float] = (1.5, 4.0)
     """Their depth under the floor, in units of the loss's clamp (uniform in this range). Each
     bounds the SDF from below (one-sided loss), so samples nearer than the clamp count too."""
+    scale_prior: float = 0.0
+    """Beyond the paper: weight w of a penalty w s0 ln(s/s0)^2 that holds s near its start s0 (the
+    median initial scale; s0 makes it scan-unit like the data term); 0: none."""
+    line_of_sight_before_pruning: bool = False
+    """Draw a query's line-of-sight samples (its refine-only tail) from the first iteration, not
+    only once the hypotheses are pruned."""
     fscore_points: int = 3000
     fscore_fraction: float = 0.05
     extract_resolution: int = 128
@@ -151,14 +157,14 @@ FAST = Preset(
     fit=FitSettings(iterations=160, samples_per_iteration=1500, lr_decay_every=100,
                     prune_after=20, prune_keep=2, init_scale="height", selection="loss",
                     latent_space="whitened", latent_penalty=1e-4, below_floor_samples=2000,
-                    below_floor_depth=(0.1, 4.0)),
+                    below_floor_depth=(0.1, 4.0), scale_prior=0.05, line_of_sight_before_pruning=True),
 )
 """The default on a CPU: 5.3x fewer samples and 5x fewer iterations, yaw hypotheses pruned to
-the best two after 20 iterations, scale initialized from the object's height, the latent
-optimized in the training codes' whitened space, the winner picked by its final loss rather
-than by F@5% against a partial scan; beyond the paper's samples, free space on the sensor's
-lines of sight (where the viewpoints are known) and depth bounds under the floor from just below
-it (docs/presets.md)."""
+the best two after 20 iterations, scale initialized from the object's height and held near it by
+a weak prior, the latent optimized in the training codes' whitened space, the winner picked by
+its final loss rather than by F@5% against a partial scan; beyond the paper's samples, free
+space on the sensor's lines of sight (where the viewpoints are known, from the first iteration)
+and depth bounds under the floor from just below it (docs/presets.md)."""
 
 SMOKE = Preset(
     name="smoke",

@@ -28,7 +28,8 @@ class SdfQuery:
     up : (3,) unit vector or None: the known rotation axis (floor normal)
     floor_offset : float or None: the floor plane is {x : up·x = floor_offset}
     n_refine_only : the last this many samples (line-of-sight free space) are drawn only once
-        the hypotheses are pruned: the yaw is decided on the paper's evidence, they shape the rest
+        the hypotheses are pruned (the yaw decided on the paper's evidence), unless
+        ``FitSettings.line_of_sight_before_pruning``
     lower_bound : (m,) bool or None: samples whose ``sdf`` is only a lower bound on the true SDF
         (under the floor: fit.floor); the loss counts their predictions only where they fall short
     """
@@ -80,8 +81,10 @@ def loss_clamp(settings: FitSettings, inits: list[Init]) -> float | None:
 
 def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
                       *, clamp: float | None, latent_penalty: float,
-                      lower_bound: torch.Tensor | None = None) -> torch.Tensor:
-    """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖code‖².
+                      lower_bound: torch.Tensor | None = None,
+                      scale_prior: tuple[float, float] = (0.0, 1.0)) -> torch.Tensor:
+    """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖code‖²
+    [+ w s0 ln(s/s0)² with ``scale_prior`` = (w, s0)].
 
     ``points`` (K, 3) and ``sdf`` (K,) in scan units, shared by all hypotheses; the code is z
     (the paper) or the whitened w of a :class:`LatentPrior`. Where ``lower_bound`` (K,) bool is
@@ -99,7 +102,11 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
     if lower_bound is not None:
         error = torch.where(lower_bound[None, :], (target - pred).clamp(min=0.0), error)
     data_term = error.mean(dim=1)
-    return data_term + latent_penalty * batch.code.to(torch.float32).pow(2).sum(dim=1)
+    loss = data_term + latent_penalty * batch.code.to(torch.float32).pow(2).sum(dim=1)
+    weight, start = scale_prior
+    if weight:
+        loss = loss + weight * start * torch.log(batch.scale.to(torch.float32) / start).pow(2)
+    return loss
 
 
 def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
@@ -124,6 +131,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     clamp = loss_clamp(settings, inits)
     s0 = float(np.median([i.scale for i in inits]))
     penalty = settings.latent_penalty * (s0 if prior is not None else 1.0)
+    scale_prior = (settings.scale_prior, s0)
     points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
     sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
     lower = None if query.lower_bound is None else torch.as_tensor(query.lower_bound, device=device)
@@ -148,7 +156,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         idx = sampler.draw(_sample_pool(query, settings, it), settings.samples_per_iteration,
                            enriched=it >= settings.near_sample_from).to(device)
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
-                                   lower_bound=None if lower is None else lower[idx])
+                                   lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior)
         optimizer.zero_grad(set_to_none=True)
         losses.sum().backward()
         optimizer.step()
@@ -156,7 +164,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         current = losses.detach().double()
         recent = 0.8 * recent + 0.2 * current if it else current
         evaluations += len(batch) * len(idx)
-    final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty, generator)
+    final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, (penalty, scale_prior), generator)
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
     return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
                      time.perf_counter() - start)
@@ -198,7 +206,7 @@ class SampleDrawer:
 def _sample_pool(query: SdfQuery, settings: FitSettings, iteration: int) -> int:
     """How many of the query's samples (from the start) iteration ``iteration`` draws from."""
     pruning_ahead = settings.prune_after is not None and iteration < settings.prune_after
-    if pruning_ahead and query.n_refine_only < len(query.sdf):
+    if pruning_ahead and not settings.line_of_sight_before_pruning and query.n_refine_only < len(query.sdf):
         return len(query.sdf) - query.n_refine_only
     return len(query.sdf)
 
@@ -226,11 +234,11 @@ def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:
 
 
 def _final_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
-                  lower: torch.Tensor | None, settings: FitSettings, clamp: float | None, penalty: float,
-                  generator: torch.Generator) -> np.ndarray:
+                  lower: torch.Tensor | None, settings: FitSettings, clamp: float | None,
+                  penalties: tuple[float, tuple[float, float]], generator: torch.Generator) -> np.ndarray:
     n = min(settings.eval_samples, len(sdf))
     idx = torch.randperm(len(sdf), generator=generator)[:n].to(sdf.device)
     with torch.no_grad():
-        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
-                                   lower_bound=None if lower is None else lower[idx])
+        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalties[0],
+                                   lower_bound=None if lower is None else lower[idx], scale_prior=penalties[1])
     return losses.double().cpu().numpy()

@@ -164,7 +164,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         current = losses.detach().double()
         recent = 0.8 * recent + 0.2 * current if it else current
         evaluations += len(batch) * len(idx)
-    final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, (penalty, scale_prior), generator)
+    final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty, scale_prior, generator)
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
     return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
                      time.perf_counter() - start)
@@ -234,11 +234,11 @@ def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:
 
 
 def _final_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
-                  lower: torch.Tensor | None, settings: FitSettings, clamp: float | None,
-                  penalties: tuple[float, tuple[float, float]], generator: torch.Generator) -> np.ndarray:
+                  lower: torch.Tensor | None, settings: FitSettings, clamp: float | None, penalty: float,
+                  scale_prior: tuple[float, float], generator: torch.Generator) -> np.ndarray:
     n = min(settings.eval_samples, len(sdf))
     idx = torch.randperm(len(sdf), generator=generator)[:n].to(sdf.device)
     with torch.no_grad():
-        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalties[0],
-                                   lower_bound=None if lower is None else lower[idx], scale_prior=penalties[1])
+        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
+                                   lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior)
     return losses.double().cpu().numpy()

@@ -159,6 +159,18 @@ def test_every_hypothesis_is_fitted_and_scored_on_its_own(lshape):
         assert np.allclose(o.transform.R @ axis, axis, atol=1e-9)
 
 
+def test_a_start_perturbed_on_purpose_is_not_held_by_the_scale_prior(lshape):
+    """The synthetic starts are the truth perturbed (30% too large here): even a preset with a
+    strong scale prior fits the true scale, since the prior only suits the data's own estimate."""
+    case = lshape_case(lshape)
+    start = replace(inits_around(case.truth, sample_deltas(SCENARIOS["known"], 1, rng=np.random.default_rng(4)))[0],
+                    scale=1.3 * case.truth.scale)
+    settings = replace(SMOKE.fit, iterations=60, samples_per_iteration=1000, scale_prior=1.0)
+    outcome, = fit_hypotheses(lshape, case.query, [start], settings, fixed=fixed_parameters(SCENARIOS["known"]),
+                              seed=0, resolution=40)
+    assert outcome.transform.s == pytest.approx(case.truth.scale, rel=0.05)
+
+
 # --- end to end ---------------------------------------------------------------------------------
 
 

@@ -217,9 +217,10 @@ def fit_hypotheses(model: DeepSdfModel, query: SdfQuery, inits: list[Init], sett
     """Optimize all ``inits`` as one batch (no pruning) and decode every hypothesis.
 
     ``resolution``: marching-cubes resolution of the decoded surfaces (default
-    ``settings.selection_resolution``, the one the fit scores its hypotheses at).
+    ``settings.selection_resolution``, the one the fit scores its hypotheses at). No scale prior:
+    these starts are the truth perturbed on purpose (the paper's Table 1), not the data's estimate.
     """
-    settings = replace(settings, prune_after=None)
+    settings = replace(settings, prune_after=None, scale_prior=0.0)
     generator = torch.Generator().manual_seed(seed)
     result = optimize(model.decoder, query, inits, settings, fixed=fixed, generator=generator,
                       prior=latent_prior(model, settings))

@@ -43,6 +43,7 @@ def main() -> None:
     parser.add_argument("--model", default="chair")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--scans", default=None, help="Comma-separated scan names (default: every scan).")
     parser.add_argument("changes", nargs="*", help="KEY=VALUE fields of FitSettings.")
     args = parser.parse_intermixed_args()
 
@@ -60,7 +61,10 @@ def main() -> None:
     truths = pickle.loads((folder / "truths.pkl").read_bytes())
     model = resolve_model(args.model)
     rows = []
+    only = None if args.scans is None else set(args.scans.split(","))
     for name, truth in sorted(truths.items()):
+        if only is not None and name not in only:
+            continue
         if not (folder / f"{name}.npz").exists():
             print(f"no query file for {name}: skipped", flush=True)
             continue

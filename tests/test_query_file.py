@@ -31,7 +31,7 @@ def test_round_trip_keeps_every_field(tmp_path):
     rng = np.random.default_rng(0)
     query = SdfQuery(rng.normal(size=(50, 3)), rng.normal(size=50), rng.normal(size=(20, 3)),
                      up=np.array([0.0, 0.6, 0.8]), floor_offset=-0.25, info={"input": "scan", "n": 3},
-                     n_refine_only=7)
+                     n_refine_only=7, lower_bound=rng.random(50) < 0.3)
     path = tmp_path / "q.npz"
     save_query(query, path)
     back = read_query_file(path)
@@ -40,6 +40,7 @@ def test_round_trip_keeps_every_field(tmp_path):
     np.testing.assert_array_equal(back.sdf, query.sdf)
     np.testing.assert_array_equal(back.surface, query.surface)
     np.testing.assert_array_equal(back.up, query.up)
+    np.testing.assert_array_equal(back.lower_bound, query.lower_bound)
     assert (back.floor_offset, back.info, back.n_refine_only) == (-0.25, {"input": "scan", "n": 3}, 7)
 
 
@@ -47,7 +48,7 @@ def test_no_up_and_no_floor_stay_none(tmp_path):
     query = SdfQuery(np.zeros((3, 3)), np.zeros(3), np.zeros((2, 3)))
     save_query(query, tmp_path / "q.npz")
     back = read_query_file(tmp_path / "q.npz")
-    assert back.up is None and back.floor_offset is None
+    assert back.up is None and back.floor_offset is None and back.lower_bound is None
 
 
 def test_fitting_the_prepared_query_equals_fitting_the_scan(tmp_path, lshape, scan_file):
@@ -68,11 +69,14 @@ def test_sample_files_are_not_query_files(tmp_path):
 @pytest.mark.parametrize("content, message", [
     (b"not a zip", "not a jsrte query file"),
     (None, "do not fit"),
+    ("lower_bound", "lower_bound .* does not fit"),
 ])
 def test_bad_query_files_are_refused_naming_the_file(tmp_path, content, message):
     path = tmp_path / "bad.npz"
     if content is None:
         save_query(SdfQuery(np.zeros((5, 3)), np.zeros(4), np.zeros((2, 3))), path)
+    elif content == "lower_bound":
+        save_query(SdfQuery(np.zeros((5, 3)), np.zeros(5), np.zeros((2, 3)), lower_bound=np.ones(4, bool)), path)
     else:
         path.write_bytes(content)
     with pytest.raises(JsrteError, match=message) as info:

@@ -80,12 +80,16 @@ def save_query(query: SdfQuery, path: str | Path) -> None:
     """Write ``query`` as an ``.npz`` query file, atomically (read back by :func:`read_query_file`)."""
     from jsrte.io import write_with
 
+    arrays = {"format": np.array(QUERY_FORMAT), "points": query.points, "sdf": query.sdf, "surface": query.surface,
+              "up": np.full(3, np.nan) if query.up is None else np.asarray(query.up, float),
+              "floor_offset": np.float64(np.nan if query.floor_offset is None else query.floor_offset),
+              "n_refine_only": np.int64(query.n_refine_only), "info": np.array(json.dumps(query.info))}
+    if query.lower_bound is not None:
+        arrays["lower_bound"] = np.asarray(query.lower_bound, bool)
+
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as f:
-            np.savez(f, format=np.array(QUERY_FORMAT), points=query.points, sdf=query.sdf, surface=query.surface,
-                     up=np.full(3, np.nan) if query.up is None else np.asarray(query.up, float),
-                     floor_offset=np.float64(np.nan if query.floor_offset is None else query.floor_offset),
-                     n_refine_only=np.int64(query.n_refine_only), info=np.array(json.dumps(query.info)))
+            np.savez(f, **arrays)
 
     write_with(path, write)
 
@@ -106,15 +110,19 @@ def read_query_file(path: str | Path) -> SdfQuery:
             points, sdf, surface = data["points"], data["sdf"], data["surface"]
             up, floor = data["up"], float(data["floor_offset"])
             n_refine, info = int(data["n_refine_only"]), json.loads(str(data["info"]))
+            lower = data["lower_bound"] if "lower_bound" in data.files else None
     except Exception as exc:
         raise JsrteError(f"not a jsrte query file ({type(exc).__name__}: {exc})", path) from exc
     if points.ndim != 2 or points.shape[1] != 3 or sdf.shape != (len(points),) or surface.ndim != 2:
         raise JsrteError(f"points {points.shape}, sdf {sdf.shape} and surface {surface.shape} do not fit", path)
+    if lower is not None and (lower.dtype != bool or lower.shape != sdf.shape):
+        raise JsrteError(f"lower_bound {lower.dtype} {lower.shape} does not fit sdf {sdf.shape}", path)
     if not (np.isfinite(points).all() and np.isfinite(sdf).all()):
         raise JsrteError("holds NaN or infinite samples", path)
     return SdfQuery(points.astype(np.float64), sdf.astype(np.float64), surface.astype(np.float64),
                     up=None if np.isnan(up).any() else up.astype(np.float64),
-                    floor_offset=None if np.isnan(floor) else floor, info=info, n_refine_only=n_refine)
+                    floor_offset=None if np.isnan(floor) else floor, info=info, n_refine_only=n_refine,
+                    lower_bound=lower)
 
 
 def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,

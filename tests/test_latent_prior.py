@@ -3,11 +3,12 @@
 from dataclasses import replace
 
 import numpy as np
+import pytest
 import torch
 
 from analytic import SphereDecoder
 from jsrte.fit.api import latent_prior
-from jsrte.fit.optimize import SdfQuery, optimize
+from jsrte.fit.optimize import SdfQuery, latent_penalty, optimize
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.presets import FAST
@@ -60,3 +61,30 @@ def test_whitened_fit_moves_along_the_codes_spread_and_raw_fit_does_not():
     assert abs(whitened.sum() - 0.2) < 0.01 and abs(raw.sum() - 0.2) < 0.01  # both fit the radius
     assert abs(whitened[1]) < 0.02  # stays where the training codes are
     assert abs(raw[1]) > 0.05  # the paper's raw z drifts off them
+
+
+def test_latent_penalty_scales_with_the_evidence():
+    settings = replace(FAST.fit, latent_penalty=1e-5, latent_penalty_points=3000)
+    assert latent_penalty(settings, n_surface=1000) == pytest.approx(3e-5)
+    assert latent_penalty(settings, n_surface=6000) == pytest.approx(5e-6)
+    assert latent_penalty(replace(settings, latent_penalty_points=None), n_surface=1000) == 1e-5
+
+
+def test_sparse_evidence_leans_on_the_prior_and_dense_evidence_does_not():
+    """The same SDF samples, told they come from 10 or from 10 000 surface points: with the
+    penalty scaled by the evidence the sparse fit stays near the training codes' mean radius
+    (0.5) and the dense one fits the sphere (0.7)."""
+    rng = np.random.default_rng(1)
+    codes = rng.normal(0, 0.1, (200, 2))
+    model = DeepSdfModel(SphereDecoder(), torch.as_tensor(codes, dtype=torch.float32), {"name": "sphere"})
+    points = rng.uniform(-1, 1, size=(4000, 3))
+    settings = replace(FAST.fit, iterations=300, prune_after=None, prune_again_after=None, latent_space="raw",
+                       latent_penalty=1.0, latent_penalty_points=100)
+    sums = []
+    for n_surface in (10, 10_000):
+        query = SdfQuery(points, np.linalg.norm(points, axis=1) - 0.7, np.zeros((n_surface, 3)))
+        out = optimize(model.decoder, query, [Init(1.0, 0.0, 0.0, 0.0, np.zeros(3))], settings,
+                       fixed=frozenset({"scale", "psi", "rho", "theta", "translation"}),
+                       generator=torch.Generator().manual_seed(0))
+        sums.append(float(out.batch.latent[0].detach().sum()))
+    assert abs(sums[0]) < 0.05 and abs(sums[1] - 0.2) < 0.01

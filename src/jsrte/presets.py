@@ -80,6 +80,10 @@ class FitSettings:
     scale_max: float = 10.0
     latent_penalty: float = 1e-4
     """Weight of ||z||^2 (DeepSDF's code regularization)."""
+    latent_penalty_points: int | None = None
+    """Beyond the paper: scale the latent penalty by this many points over the query's surface
+    points (a scan's object points), so that sparse evidence leans on the prior more and dense
+    evidence less (a MAP estimate with a mean data term); None: the penalty as given."""
     latent_init_std: float = 0.01
     """z0 ~ N(0, std^2 I) (the whitened code w0 with ``latent_space = "whitened"``)."""
     latent_space: str = "raw"

@@ -79,6 +79,14 @@ def loss_clamp(settings: FitSettings, inits: list[Init]) -> float | None:
     return settings.clamp_canonical * float(np.median([i.scale for i in inits]))
 
 
+def latent_penalty(settings: FitSettings, *, n_surface: int) -> float:
+    """λ: ``latent_penalty``, times ``latent_penalty_points`` / ``n_surface`` (the query's
+    surface points) when that is set."""
+    if settings.latent_penalty_points is None:
+        return settings.latent_penalty
+    return settings.latent_penalty * settings.latent_penalty_points / max(n_surface, 1)
+
+
 def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
                       *, clamp: float | None, latent_penalty: float,
                       lower_bound: torch.Tensor | None = None,
@@ -130,7 +138,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
                             fixed=fixed, generator=generator, prior=prior).to(device)
     clamp = loss_clamp(settings, inits)
     s0 = float(np.median([i.scale for i in inits]))
-    penalty = settings.latent_penalty * (s0 if prior is not None else 1.0)
+    penalty = latent_penalty(settings, n_surface=len(query.surface)) * (s0 if prior is not None else 1.0)
     scale_prior = (settings.scale_prior, s0)
     points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
     sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)

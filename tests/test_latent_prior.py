@@ -49,7 +49,8 @@ def sphere_fit(space: str) -> np.ndarray:
     model = DeepSdfModel(SphereDecoder(), torch.as_tensor(codes, dtype=torch.float32), {"name": "sphere"})
     points = rng.uniform(-1, 1, size=(4000, 3))
     query = SdfQuery(points, np.linalg.norm(points, axis=1) - 0.7, points[:10])
-    settings = replace(FAST.fit, iterations=300, prune_after=None, latent_space=space, latent_penalty=1e-5)
+    settings = replace(FAST.fit, iterations=300, prune_after=None, latent_space=space, latent_penalty=1e-5,
+                       latent_penalty_points=None)
     out = optimize(model.decoder, query, [Init(1.0, 0.0, 0.0, 0.0, np.zeros(3))], settings,
                    fixed=frozenset({"scale", "psi", "rho", "theta", "translation"}),
                    generator=torch.Generator().manual_seed(0), prior=latent_prior(model, settings))

@@ -159,14 +159,14 @@ FAST = Preset(
     name="fast",
     scan_sdf=with_line_of_sight(ScanSdf()),
     fit=FitSettings(iterations=160, samples_per_iteration=1500, lr_decay_every=100,
-                    prune_after=20, prune_keep=4, prune_again_after=40, prune_again_keep=2,
+                    prune_after=20, prune_keep=4, prune_again_after=60, prune_again_keep=2,
                     init_scale="height", selection="loss",
                     latent_space="whitened", latent_penalty=1e-5, latent_penalty_points=6000,
                     below_floor_samples=2000, below_floor_depth=(0.1, 4.0), scale_prior=0.05,
                     line_of_sight_before_pruning=True),
 )
 """The default on a CPU: 5.3x fewer samples and 5x fewer iterations, yaw hypotheses pruned to
-the best four after 20 iterations and the best two after 40, scale initialized from the object's
+the best four after 20 iterations and the best two after 60, scale initialized from the object's
 height and held near it by a weak prior, the latent optimized in the training codes' whitened
 space under a penalty that weakens as the scan's object points grow, the winner picked by
 its final loss rather than by F@5% against a partial scan; beyond the paper's samples, free

@@ -159,6 +159,19 @@ def test_every_hypothesis_is_fitted_and_scored_on_its_own(lshape):
         assert np.allclose(o.transform.R @ axis, axis, atol=1e-9)
 
 
+def test_a_preset_that_prunes_twice_still_scores_every_initialization(lshape):
+    """The default preset prunes after 20 and again after 60 iterations; the synthetic experiment
+    scores each initialization, so both prunings must be off there."""
+    case = lshape_case(lshape)
+    inits = inits_around(case.truth, sample_deltas(SCENARIOS["known"], 5, rng=np.random.default_rng(4)))
+    settings = replace(SMOKE.fit, iterations=12, samples_per_iteration=500, prune_after=4, prune_keep=3,
+                       prune_again_after=8, prune_again_keep=1)
+    outcomes = fit_hypotheses(lshape, case.query, inits, settings, fixed=fixed_parameters(SCENARIOS["known"]),
+                              seed=0, resolution=24)
+    assert len(outcomes) == 5
+    assert len({round(o.loss, 9) for o in outcomes}) == 5  # five separate fits, not one repeated
+
+
 def test_a_start_perturbed_on_purpose_is_not_held_by_the_scale_prior(lshape):
     """The synthetic starts are the truth perturbed (30% too large here): even a preset with a
     strong scale prior fits the true scale, since the prior only suits the data's own estimate."""

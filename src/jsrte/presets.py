@@ -142,6 +142,10 @@ class FitSettings:
     fscore_fraction: float = 0.05
     extract_resolution: int = 128
 
+    def without_pruning(self) -> "FitSettings":
+        """The same settings with every hypothesis run to the end (both prunings off)."""
+        return replace(self, prune_after=None, prune_again_after=None)
+
 
 @dataclass(frozen=True)
 class Preset:

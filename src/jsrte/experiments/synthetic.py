@@ -220,7 +220,7 @@ def fit_hypotheses(model: DeepSdfModel, query: SdfQuery, inits: list[Init], sett
     ``settings.selection_resolution``, the one the fit scores its hypotheses at). No scale prior:
     these starts are the truth perturbed on purpose (the paper's Table 1), not the data's estimate.
     """
-    settings = replace(settings, prune_after=None, scale_prior=0.0)
+    settings = replace(settings.without_pruning(), scale_prior=0.0)
     generator = torch.Generator().manual_seed(seed)
     result = optimize(model.decoder, query, inits, settings, fixed=fixed, generator=generator,
                       prior=latent_prior(model, settings))

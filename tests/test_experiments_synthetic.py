@@ -12,6 +12,7 @@ import torch
 from scipy import stats
 
 from analytic import LShapeDecoder
+from jsrte.errors import JsrteError
 from jsrte.experiments.plots import binned_counts
 from jsrte.experiments.synthetic import (
     Pose,
@@ -276,3 +277,64 @@ def test_cli_runs_with_a_model_file_and_refuses_bad_options(tmp_path, monkeypatc
                          "--model", model_path, "--scenarios", "known,sideways")
     assert rc == 2 and "sideways" in err
     assert not bad.exists()
+
+
+def read_rows(path) -> list[dict]:
+    with open(path) as fh:
+        return [{k: v for k, v in r.items() if k != "seconds"} for r in csv.DictReader(fh)]
+
+
+def test_an_interrupted_run_resumes_to_the_rows_of_an_uninterrupted_one(tmp_path):
+    from jsrte.presets import SdfSampling
+
+    config = SyntheticConfig(categories=("chair",), scenarios=("known", "unknown"),
+                             sampling=SdfSampling(n_points=2000), **TINY)
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    whole.mkdir()
+    cut.mkdir()
+    run_synthetic(config, {"chair": sphere_model()}, whole)
+    rows = read_rows(whole / "runs.csv")
+    assert len(rows) == 2 * 2 * 3
+    # an interruption after shape 0's two scenarios and one run of shape 1's first
+    (cut / "config.json").write_bytes((whole / "config.json").read_bytes())
+    lines = (whole / "runs.csv").read_text().splitlines(keepends=True)
+    (cut / "runs.csv").write_text("".join(lines[:1 + 2 * 3 + 1]))
+    log = []
+    report = run_synthetic(config, {"chair": sphere_model()}, cut, resume=True, log=log.append)
+    assert report.resumed_runs == 6 and "resuming: 6 runs" in log[0]
+    assert sum("shape 0" in line for line in log) == 0  # shape 0 was not fitted again
+    assert read_rows(cut / "runs.csv") == rows
+    assert (cut / "summary.md").is_file() and "resumed: 6 runs" in (cut / "summary.md").read_text()
+
+    other = replace(config, inits=4)
+    with pytest.raises(JsrteError, match="settings differ.*inits"):
+        run_synthetic(other, {"chair": sphere_model()}, cut, resume=True)
+    retrained = DeepSdfModel(sphere_model().decoder, torch.zeros(2, 8), {"name": "tiny", "sha256": "f00"})
+    with pytest.raises(JsrteError, match="settings differ.*models"):
+        run_synthetic(config, {"chair": retrained}, cut, resume=True)
+
+
+def test_cli_resumes_and_refuses_to_overwrite_an_unfinished_run(tmp_path, monkeypatch, capsys):
+    from jsrte.model.checkpoint import save_model
+
+    model_path = tmp_path / "tiny.safetensors"
+    save_model(sphere_model(), model_path)
+    out = tmp_path / "syn"
+    args = ["experiment", "synthetic", "--out", out, "--categories", "chair", "--model", model_path,
+            "--shapes", "2", "--inits", "2", "--scenarios", "known", "--preset", "smoke", "--samples", "2000",
+            "--resolution", "16", "--threads", "1"]
+    rc, _, err = run_cli(monkeypatch, capsys, *args, "--resume")
+    assert rc == 2 and "nothing to resume" in err and not out.exists()
+    rc, _, err = run_cli(monkeypatch, capsys, *args)
+    assert rc == 0, err
+    (out / "summary.md").unlink()  # as if stopped before the end
+    rows = (out / "runs.csv").read_text()
+    rc, _, err = run_cli(monkeypatch, capsys, *args)
+    assert rc == 2 and "--resume" in err and (out / "runs.csv").read_text() == rows
+    rc, _, err = run_cli(monkeypatch, capsys, *args, "--resume", "--overwrite")
+    assert rc == 2 and "give one" in err
+    rc, stdout, err = run_cli(monkeypatch, capsys, *args, "--resume")
+    assert rc == 0, err
+    assert "resuming: 4 runs" in stdout and "shape 1" not in stdout and (out / "summary.md").is_file()
+    rc, _, err = run_cli(monkeypatch, capsys, *args, "--inits", "3", "--resume")
+    assert rc == 2 and "settings differ" in err

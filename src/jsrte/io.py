@@ -72,11 +72,13 @@ def _json_default(obj: Any) -> Any:
 
 
 @contextmanager
-def output_dir(path: str | Path, *, overwrite: bool = False, marker: str | None = None) -> Iterator[Path]:
+def output_dir(path: str | Path, *, overwrite: bool = False, marker: str | None = None,
+               keep: Callable[[Path], bool] | None = None) -> Iterator[Path]:
     """Prepare an output folder and remove it again if the work inside fails.
 
     Refuses a folder that already holds ``marker`` (a previous result) unless ``overwrite``.
-    A folder created here is deleted on failure; an existing one keeps what it had.
+    A folder created here is deleted on failure, unless ``keep(folder)`` says its partial
+    results are worth keeping (a resumable run); an existing one keeps what it had.
     """
     path = Path(path)
     if marker and (path / marker).exists() and not overwrite:
@@ -86,6 +88,6 @@ def output_dir(path: str | Path, *, overwrite: bool = False, marker: str | None 
     try:
         yield path
     except BaseException:
-        if created:
+        if created and not (keep is not None and keep(path)):
             shutil.rmtree(path, ignore_errors=True)
         raise

@@ -142,7 +142,7 @@ class FitSettings:
     fscore_fraction: float = 0.05
     extract_resolution: int = 128
 
-    def without_pruning(self) -> "FitSettings":
+    def without_pruning(self) -> FitSettings:
         """The same settings with every hypothesis run to the end (both prunings off)."""
         return replace(self, prune_after=None, prune_again_after=None)
 
@@ -267,6 +267,8 @@ class SyntheticScale:
 SYNTHETIC_SCALES: dict[str, SyntheticScale] = {
     "quick": SyntheticScale("quick", shapes=3, inits=4, scenarios=("known", "unknown"), preset="fast",
                             query_samples=50_000),
+    "medium": SyntheticScale("medium", shapes=10, inits=10, scenarios=tuple(SCENARIOS), preset="fast",
+                             query_samples=50_000),
     "paper": SyntheticScale("paper", shapes=30, inits=50, scenarios=tuple(SCENARIOS), preset="paper",
                             query_samples=SdfSampling.n_points),
 }

@@ -58,8 +58,10 @@ def synthetic_command(
     model: str = typer.Option(None, help="Model file (or shipped name) for a single class given by "
                                          "--categories."),
     scale: str = typer.Option("quick", help=f"Experiment size: {', '.join(SYNTHETIC_SCALES)} "
-                                            "(quick: 3 shapes x 4 inits x 2 scenarios, fast preset; "
-                                            "paper: 30 x 50 x 4 scenarios, paper preset)."),
+                                            "(quick: 3 shapes x 4 inits x 2 scenarios, fast preset, minutes; "
+                                            "medium: 10 x 10 x 4 scenarios, fast preset, about an hour per "
+                                            "class on 1 CPU core; paper: 30 x 50 x 4 scenarios, paper "
+                                            "preset, GPU hours)."),
     shapes: int = typer.Option(None, help="Held-out shapes per class (overrides --scale)."),
     inits: int = typer.Option(None, help="Initializations per shape and scenario (overrides --scale)."),
     scenarios: str = typer.Option(None, help=f"Scenarios, comma-separated: {', '.join(SCENARIOS)} "
@@ -72,12 +74,14 @@ def synthetic_command(
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     device: str = typer.Option("cpu", help="Torch device of the fits: cpu, cuda or cuda:N."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
+    resume: bool = typer.Option(False, help="Continue an interrupted run in --out (same settings) where it "
+                                            "stopped."),
 ) -> None:
     """Paper section 4.1 (Fig. 2) and the supplementary's wider ranges: fits of held-out shapes under
     random transforms from random initializations around the truth."""
     from dataclasses import replace
 
-    from jsrte.experiments.synthetic import SUMMARY_MD, SyntheticConfig, run_synthetic
+    from jsrte.experiments.synthetic import CONFIG_NAME, RUNS_NAME, SUMMARY_MD, SyntheticConfig, run_synthetic
     from jsrte.io import output_dir
     from jsrte.shapes import CATEGORIES
 
@@ -100,15 +104,24 @@ def synthetic_command(
         else f"{scale} (modified)",
         sampling=replace(PRESETS[preset_name].sampling, n_points=samples or base.query_samples),
         seed=seed, resolution=resolution)
-    _check_out(out, SUMMARY_MD, overwrite)
+    if resume and overwrite:
+        raise JsrteError("--resume continues the run in --out, --overwrite replaces it: give one")
+    if resume and not (out / CONFIG_NAME).is_file():
+        raise JsrteError(f"nothing to resume ({CONFIG_NAME} missing)", out)
+    if not resume:
+        _check_out(out, SUMMARY_MD, overwrite)
+        if (out / RUNS_NAME).exists() and not overwrite:
+            raise JsrteError(f"holds an unfinished run ({RUNS_NAME}); pass --resume to continue it or "
+                             "--overwrite to replace it", out)
     torch_device = resolve_device(device)
     models = {c: m if m is None else m.to(torch_device) for c, m in load_models(cats, model).items()}
     if all(m is None for m in models.values()):
         raise JsrteError(f"no model for any of {', '.join(cats)}: none is shipped; pass --model PATH "
                          "with one category")
     set_threads(threads)
-    with output_dir(out, overwrite=overwrite, marker=SUMMARY_MD) as folder:
-        report = run_synthetic(config, models, folder, log=typer.echo)
+    with output_dir(out, overwrite=overwrite or resume, marker=SUMMARY_MD,
+                    keep=lambda folder: (folder / RUNS_NAME).is_file()) as folder:
+        report = run_synthetic(config, models, folder, log=typer.echo, resume=resume)
     for row in report.summary:
         if row["status"] == "ok":
             typer.echo(f"{row['scenario']:12s} {row['category']:6s} median F@5% {row['median_fscore']:.3f}  "

@@ -14,15 +14,17 @@ its own transform, against the transformed true mesh.
 from __future__ import annotations
 
 import csv
+import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 
+from jsrte.errors import JsrteError
 from jsrte.fit.api import latent_prior
 from jsrte.fit.optimize import SdfQuery, optimize
 from jsrte.fit.params import Init
@@ -46,6 +48,7 @@ from jsrte.shapes import CATEGORIES, EVAL_SET_SEED, generate_shape, shape_seed
 Log = Callable[[str], None]
 
 RUNS_NAME = "runs.csv"
+CONFIG_NAME = "config.json"
 SUMMARY_MD = "summary.md"
 SUMMARY_CSV = "summary.csv"
 FIGURE_NAME = "fscore_boxplots.png"
@@ -295,6 +298,8 @@ class SyntheticReport:
     models: dict[str, dict] = field(default_factory=dict)
     files: list[Path] = field(default_factory=list)
     seconds: float = 0.0
+    resumed_runs: int = 0
+    """Rows taken over from an interrupted run of the same configuration (``resume``)."""
 
 
 def _model_source(path: str | None) -> str:
@@ -349,10 +354,13 @@ def run_shape(model: DeepSdfModel, case: SyntheticCase, scenario: SyntheticScena
 
 
 def run_synthetic(config: SyntheticConfig, models: dict[str, DeepSdfModel | None], out: Path, *,
-                  log: Log | None = None) -> SyntheticReport:
+                  log: Log | None = None, resume: bool = False) -> SyntheticReport:
     """Run the experiment and write runs.csv, summary.csv, summary.md and the box plots in ``out``.
 
     ``models`` maps each category of ``config.categories`` to its model, or None (skipped).
+    ``out/config.json`` records what is run and runs.csv grows shape by shape, so ``resume``
+    continues an interrupted run of the same configuration where it stopped (each shape and
+    scenario draws from its own seeds: the rows are those of an uninterrupted run).
     """
     from jsrte.experiments.plots import plot_fscore_boxplots
 
@@ -362,6 +370,14 @@ def run_synthetic(config: SyntheticConfig, models: dict[str, DeepSdfModel | None
         raise ValueError(f"unknown scenarios {unknown}; known: {', '.join(SCENARIOS)}")
     started = time.perf_counter()
     report = SyntheticReport()
+    identity = run_identity(config, models)
+    if resume:
+        report.runs = resumable_runs(out, identity, config.inits)
+        report.resumed_runs = len(report.runs)
+        log(f"resuming: {len(report.runs)} runs already in {out / RUNS_NAME}")
+    else:
+        write_bytes_atomic(out / CONFIG_NAME, json.dumps(identity, indent=1).encode())
+    done = {(r["category"], r["shape_index"], r["scenario"]) for r in report.runs}
     for category in config.categories:
         model = models.get(category)
         if model is None:
@@ -371,15 +387,18 @@ def run_synthetic(config: SyntheticConfig, models: dict[str, DeepSdfModel | None
         report.models[category] = {"name": model.name, "sha256": model.meta.get("sha256"),
                                    "path": model.meta.get("path")}
         for index in range(config.shapes):
+            todo = [name for name in config.scenarios if (category, index, name) not in done]
+            if not todo:
+                continue
             case = make_case(category, index, rng=_case_rng(config.seed, category, index),
                              sampling=config.sampling)
-            for name in config.scenarios:
+            for name in todo:
                 rows = run_shape(model, case, SCENARIOS[name], config)
                 report.runs.extend(rows)
                 f = np.array([r["fscore"] for r in rows])
                 log(f"{category} shape {index} {name}: F@5% median {np.median(f):.3f} "
                     f"(min {f.min():.3f}, max {f.max():.3f}) over {len(f)} inits")
-            _write_runs(out / RUNS_NAME, report.runs)  # progress survives in the file as it grows
+                _write_runs(out / RUNS_NAME, report.runs)  # progress survives in the file as it grows
     report.summary = summarize(report.runs, config, report.skipped)
     report.seconds = time.perf_counter() - started
     report.files = [out / RUNS_NAME, out / SUMMARY_CSV, out / SUMMARY_MD]
@@ -398,6 +417,51 @@ def run_synthetic(config: SyntheticConfig, models: dict[str, DeepSdfModel | None
                 report.files.append(path)
     write_bytes_atomic(out / SUMMARY_MD, summary_markdown(report, config).encode())
     return report
+
+
+def run_identity(config: SyntheticConfig, models: dict[str, DeepSdfModel | None]) -> dict:
+    """What makes two runs the same experiment (JSON-ready): every setting and each model's hash."""
+    settings = asdict(config)
+    settings.pop("scale_name")
+    settings["models"] = {c: None if m is None else m.meta.get("sha256") for c, m in sorted(models.items())}
+    return json.loads(json.dumps(settings))  # tuples become lists, as read back from the file
+
+
+def resumable_runs(out: Path, identity: dict, inits: int) -> list[dict]:
+    """The rows of an interrupted run in ``out`` with the same ``identity``: every shape and scenario
+    that has all ``inits`` rows (a row's numbers as numbers)."""
+    config_path = out / CONFIG_NAME
+    if not config_path.is_file():
+        raise JsrteError(f"nothing to resume ({CONFIG_NAME} missing)", out)
+    try:
+        earlier = json.loads(config_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise JsrteError(f"unreadable ({error})", config_path) from error
+    changed = sorted(k for k in identity.keys() | earlier.keys() if identity.get(k) != earlier.get(k))
+    if changed:
+        raise JsrteError(f"settings differ from the run being resumed ({', '.join(changed)})", config_path)
+    runs_path = out / RUNS_NAME
+    if not runs_path.is_file() or runs_path.stat().st_size == 0:
+        return []
+    with open(runs_path, newline="") as fh:
+        rows = [{k: _parse_cell(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+    counts: dict[tuple, int] = {}
+    for r in rows:
+        key = (r["category"], r["shape_index"], r["scenario"])
+        counts[key] = counts.get(key, 0) + 1
+    return [r for r in rows if counts[(r["category"], r["shape_index"], r["scenario"])] == inits]
+
+
+def _parse_cell(text: str) -> object:
+    """A runs.csv cell back to what was written: int, float, bool or str."""
+    if text in ("True", "False"):
+        return text == "True"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 def _classes(report: SyntheticReport) -> str:
@@ -505,7 +569,9 @@ def summary_markdown(report: SyntheticReport, config: SyntheticConfig) -> str:
         f"- Query: {config.sampling.n_points} DeepSDF-style SDF samples of the transformed complete mesh.",
         f"- Score: F@5% of each initialization's own decoded surface (marching cubes at "
         f"{config.surface_resolution}³) against the transformed true mesh ({fit.fscore_points} points).",
-        f"- Seed {config.seed}; {report.seconds / 60:.1f} min.", "",
+        f"- Seed {config.seed}; {report.seconds / 60:.1f} min"
+        + (f" (resumed: {report.resumed_runs} runs from an earlier start, whose time is not counted)."
+           if report.resumed_runs else "."), "",
         "| scenario | Δs | Δψ, Δρ | Δθ | ‖Δt‖ | source |", "|---|---|---|---|---|---|", scen, "",
     ]
     for category, info in report.models.items():

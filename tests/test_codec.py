@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import struct
-import sys
 import zlib
 
 import numpy as np
@@ -14,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from cli_runner import run_cli
 from jsrte.codec.format import (
     FIXED_BYTES,
     ShapeCode,
@@ -324,19 +324,6 @@ def fit_folder(tmp_path, model_path, latent, name="fit"):
     folder.mkdir()
     write_json_atomic(folder / RESULT_NAME, result.to_json())
     return folder, result
-
-
-def run_cli(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
-    from jsrte.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["jsrte", *[str(a) for a in args]])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def direct_mesh(model_path, latent, transform, resolution):

@@ -2,13 +2,13 @@
 and a tiny end-to-end run (library and CLI) that writes Table 3 and the rate–distortion plot."""
 
 import csv
-import sys
 
 import numpy as np
 import pytest
 import torch
 import trimesh
 
+from cli_runner import run_cli
 from jsrte.codec import encoded_size
 from jsrte.experiments.compression import (
     CompressionConfig,
@@ -135,19 +135,6 @@ def test_tiny_run_writes_table3_codes_meshes_and_plot(tmp_path, tiny_model_path)
     assert "| Average F-score (paper) |" in md and "20.120" in md and "0.902" in md
     assert "binary little-endian PLY" in md and "held-out" in md and "re-meshed" in md
     assert (tmp_path / "rate_distortion.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-
-
-def run_cli(monkeypatch, capsys, *args) -> tuple[int, str, str]:
-    from jsrte.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["jsrte", *[str(a) for a in args]])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_cli_compression_from_scans_and_refusals(tmp_path, monkeypatch, capsys, tiny_model_path):

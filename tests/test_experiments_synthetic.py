@@ -2,7 +2,6 @@
 its own, the Fig. 2 binning, and a tiny end-to-end run (library and CLI) writes its tables and plot."""
 
 import csv
-import sys
 from dataclasses import replace
 from math import pi
 
@@ -12,6 +11,7 @@ import torch
 from scipy import stats
 
 from analytic import LShapeDecoder
+from cli_runner import run_cli
 from jsrte.errors import JsrteError
 from jsrte.experiments.plots import binned_counts
 from jsrte.experiments.synthetic import (
@@ -237,19 +237,6 @@ def test_tiny_run_writes_runs_summary_and_plot(tmp_path):
     assert "held out" in md and "EVAL_SET_SEED" in md and "most F@5% above 0.8" in md
     assert "table: skipped" in md and "fscore_boxplots.png" in md
     assert (tmp_path / "fscore_boxplots.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-
-
-def run_cli(monkeypatch, capsys, *args) -> tuple[int, str, str]:
-    from jsrte.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["jsrte", *[str(a) for a in args]])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_cli_runs_with_a_model_file_and_refuses_bad_options(tmp_path, monkeypatch, capsys):

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 
 import numpy as np
 import pytest
 import trimesh
 
+from cli_runner import run_cli
 from jsrte.errors import JsrteError
 from jsrte.metrics.surface import FScore, bounding_sphere, chamfer, fscore, sample_surface
 from jsrte.presets import FitSettings
@@ -162,19 +162,6 @@ def test_chamfer_is_symmetric_mean_of_directed_means():
 
 
 # --- jsrte score ---------------------------------------------------------------------------
-
-
-def run_cli(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
-    from jsrte.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["jsrte", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_score_command_prints_one_json_line(tmp_path, monkeypatch, capsys):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +10,7 @@ import pytest
 import trimesh
 from manifold3d import Manifold, Mesh
 
+from cli_runner import run_cli
 from jsrte.errors import JsrteError
 from jsrte.geometry.mesh import load_mesh, normalized
 from jsrte.shapes import (
@@ -211,19 +211,6 @@ def test_iter_mesh_folder(tmp_path):
 
 
 # --- jsrte shapes -----------------------------------------------------------------------------
-
-
-def run_cli(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
-    from jsrte.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["jsrte", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_shapes_command_end_to_end(tmp_path, monkeypatch, capsys):

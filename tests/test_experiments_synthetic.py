@@ -4,6 +4,7 @@ its own, the Fig. 2 binning, and a tiny end-to-end run (library and CLI) writes 
 import csv
 from dataclasses import replace
 from math import pi
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -239,15 +240,21 @@ def test_tiny_run_writes_runs_summary_and_plot(tmp_path):
     assert (tmp_path / "fscore_boxplots.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_cli_runs_with_a_model_file_and_refuses_bad_options(tmp_path, monkeypatch, capsys):
+def tiny_cli_args(tmp_path, *, shapes: int, inits: int, scenarios: str) -> tuple[Path, list]:
+    """A saved tiny model and the arguments of a seconds-long ``jsrte experiment synthetic`` on it."""
     from jsrte.model.checkpoint import save_model
 
     model_path = tmp_path / "tiny.safetensors"
     save_model(sphere_model(), model_path)
     out = tmp_path / "syn"
-    args = ["experiment", "synthetic", "--out", out, "--categories", "chair", "--model", model_path,
-            "--shapes", "1", "--inits", "2", "--scenarios", "unknown", "--preset", "smoke", "--samples", "2000",
-            "--resolution", "16", "--threads", "1"]
+    return model_path, ["experiment", "synthetic", "--out", out, "--categories", "chair", "--model", model_path,
+                        "--shapes", str(shapes), "--inits", str(inits), "--scenarios", scenarios, "--preset",
+                        "smoke", "--samples", "2000", "--resolution", "16", "--threads", "1"]
+
+
+def test_cli_runs_with_a_model_file_and_refuses_bad_options(tmp_path, monkeypatch, capsys):
+    model_path, args = tiny_cli_args(tmp_path, shapes=1, inits=2, scenarios="unknown")
+    out = tmp_path / "syn"
     rc, stdout, err = run_cli(monkeypatch, capsys, *args)
     assert rc == 0, err
     assert "unknown" in stdout and "median F@5%" in stdout
@@ -302,14 +309,8 @@ def test_an_interrupted_run_resumes_to_the_rows_of_an_uninterrupted_one(tmp_path
 
 
 def test_cli_resumes_and_refuses_to_overwrite_an_unfinished_run(tmp_path, monkeypatch, capsys):
-    from jsrte.model.checkpoint import save_model
-
-    model_path = tmp_path / "tiny.safetensors"
-    save_model(sphere_model(), model_path)
+    _, args = tiny_cli_args(tmp_path, shapes=2, inits=2, scenarios="known")
     out = tmp_path / "syn"
-    args = ["experiment", "synthetic", "--out", out, "--categories", "chair", "--model", model_path,
-            "--shapes", "2", "--inits", "2", "--scenarios", "known", "--preset", "smoke", "--samples", "2000",
-            "--resolution", "16", "--threads", "1"]
     rc, _, err = run_cli(monkeypatch, capsys, *args, "--resume")
     assert rc == 2 and "nothing to resume" in err and not out.exists()
     rc, _, err = run_cli(monkeypatch, capsys, *args)

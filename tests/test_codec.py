@@ -7,12 +7,12 @@ import zlib
 
 import numpy as np
 import pytest
-import torch
 import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from analytic import octahedron_model
 from cli_runner import run_cli
 from jsrte.codec.format import (
     FIXED_BYTES,
@@ -271,32 +271,6 @@ def test_fuzz_mutations_with_a_valid_checksum(fmt, data):
 
 
 # --- CLI end to end -----------------------------------------------------------------------
-
-
-def octahedron_model(bias: float = -0.5, name: str = "octa"):
-    """A hand-set decoder: f(x, z) = tanh(|x|_1 + bias + 0.2 z_0), an octahedron of radius
-    -bias - 0.2 z_0 (canonical units) that the latent visibly changes."""
-    from jsrte.model.checkpoint import DeepSdfModel
-    from jsrte.model.decoder import Decoder, DecoderConfig
-
-    d = 8
-    config = DecoderConfig(latent_size=d, hidden=16, depth=2, skip_layer=2, weight_norm=False)
-    decoder = Decoder(config)
-    with torch.no_grad():
-        first, second = decoder.layers
-        first.weight.zero_()
-        first.bias.zero_()
-        for i in range(3):
-            first.weight[2 * i, d + i] = 1.0
-            first.weight[2 * i + 1, d + i] = -1.0
-        first.weight[6, 0], first.weight[7, 0] = 1.0, -1.0
-        second.weight.copy_(torch.eye(16))
-        second.bias.zero_()
-        decoder.head.weight.zero_()
-        decoder.head.weight[0, :6] = 1.0
-        decoder.head.weight[0, 6], decoder.head.weight[0, 7] = 0.2, -0.2
-        decoder.head.bias.fill_(bias)
-    return DeepSdfModel(decoder=decoder, codes=torch.zeros(2, d), meta={"name": name, "category": "chair"})
 
 
 @pytest.fixture

@@ -146,3 +146,28 @@ def test_train_refuses_existing_run_and_bad_arch(tmp_path):
     bad = subprocess.run(JSRTE + ["train", "--arch", "nope", "--out", str(tmp_path / "x")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "deepsdf" in bad.stderr and not (tmp_path / "x").exists()
+
+
+def test_evaluate_model_scores_both_sets_and_never_overwrites_without_asking(tmp_path, run_cli):
+    from analytic import octahedron_model
+
+    model_path = tmp_path / "octa.safetensors"
+    save_model(octahedron_model(data={"source": "procedural", "category": "chair", "set_seed": 0}), model_path)
+    report = tmp_path / "eval.json"
+    args = ["evaluate-model", "--model", str(model_path), "--n-train", "1", "--n-heldout", "1",
+            "--resolution", "24", "--threads", "1", "--out", str(report)]
+    code, stdout, stderr = run_cli(args)
+    assert code == 0, stderr
+    written = json.loads(report.read_text())
+    assert written["summary"]["train_count"] == 1 and written["summary"]["heldout_count"] == 1
+    assert 0.0 < written["rows"][0]["fscore"] < 1.0  # an octahedron is some way from any chair
+    assert json.loads(stdout) == written["summary"]
+
+    report.write_text("mine")
+    code, _, stderr = run_cli(args)
+    assert code != 0 and "--overwrite" in stderr and report.read_text() == "mine"
+    code, _, stderr = run_cli([*args[:-2], "--out", str(tmp_path)])
+    assert code != 0 and "is a folder" in stderr
+    code, _, stderr = run_cli([*args, "--n-heldout", "0", "--overwrite"])
+    assert code == 0, stderr
+    assert json.loads(report.read_text())["rows"] == written["rows"][:1]

@@ -55,6 +55,7 @@ def evaluate_model_command(
     seed: int = typer.Option(0, help="Random seed."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     device: str = typer.Option("cpu", help="Torch device: cpu, cuda or cuda:N."),
+    overwrite: bool = typer.Option(False, help="Replace the file given by --out if it exists."),
 ) -> None:
     """Model-card figures: F@5% / Chamfer of training and held-out procedural shapes."""
     import json
@@ -64,6 +65,10 @@ def evaluate_model_command(
     from jsrte.model.registry import resolve_model
     from jsrte.shapes import EVAL_SET_SEED, generate_set
 
+    if out is not None and out.is_dir():
+        raise JsrteError("is a folder; give a JSON file name", out)
+    if out is not None and out.exists() and not overwrite:
+        raise JsrteError("already exists; pass --overwrite to replace it", out)
     set_threads(threads)
     loaded = resolve_model(model).to(resolve_device(device))
     data = loaded.meta.get("data", {})

@@ -300,6 +300,9 @@ def test_an_interrupted_run_resumes_to_the_rows_of_an_uninterrupted_one(tmp_path
     assert read_rows(cut / "runs.csv") == rows
     assert (cut / "summary.md").is_file() and "resumed: 6 runs" in (cut / "summary.md").read_text()
 
+    (cut / "runs.csv").write_text("name,value\nx,1\n")
+    with pytest.raises(JsrteError, match="runs.csv: unreadable runs table"):
+        run_synthetic(config, {"chair": sphere_model()}, cut, resume=True)
     other = replace(config, inits=4)
     with pytest.raises(JsrteError, match="settings differ.*inits"):
         run_synthetic(other, {"chair": sphere_model()}, cut, resume=True)

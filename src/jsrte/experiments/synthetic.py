@@ -443,13 +443,14 @@ def resumable_runs(out: Path, identity: dict, inits: int) -> list[dict]:
     runs_path = out / RUNS_NAME
     if not runs_path.is_file() or runs_path.stat().st_size == 0:
         return []
-    with open(runs_path, newline="") as fh:
-        rows = [{k: _parse_cell(v) for k, v in row.items()} for row in csv.DictReader(fh)]
-    counts: dict[tuple, int] = {}
-    for r in rows:
-        key = (r["category"], r["shape_index"], r["scenario"])
-        counts[key] = counts.get(key, 0) + 1
-    return [r for r in rows if counts[(r["category"], r["shape_index"], r["scenario"])] == inits]
+    try:
+        with open(runs_path, newline="") as fh:
+            rows = [{k: _parse_cell(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+        keys = [(r["category"], r["shape_index"], r["scenario"]) for r in rows]
+    except (OSError, UnicodeDecodeError, csv.Error, KeyError) as error:
+        raise JsrteError(f"unreadable runs table ({error!r})", runs_path) from error
+    counts = {key: keys.count(key) for key in set(keys)}
+    return [r for r, key in zip(rows, keys, strict=True) if counts[key] == inits]
 
 
 def _parse_cell(text: str) -> object:

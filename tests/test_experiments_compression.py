@@ -5,9 +5,9 @@ import csv
 
 import numpy as np
 import pytest
-import torch
 import trimesh
 
+from analytic import octahedron_model
 from cli_runner import run_cli
 from jsrte.codec import encoded_size
 from jsrte.experiments.compression import (
@@ -63,35 +63,12 @@ def test_random_pose_is_rigid_and_reports_the_objects_up_axis():
     assert np.linalg.norm(pose.t) < 4.0
 
 
-def octahedron_model(name: str = "tiny"):
-    """A hand-set decoder: f(x, z) = tanh(|x|_1 - 0.5 + 0.2 z_0), an octahedron."""
-    from jsrte.model.checkpoint import DeepSdfModel
-    from jsrte.model.decoder import Decoder, DecoderConfig
-
-    d = 8
-    decoder = Decoder(DecoderConfig(latent_size=d, hidden=16, depth=2, skip_layer=2, weight_norm=False))
-    with torch.no_grad():
-        first, second = decoder.layers
-        first.weight.zero_()
-        first.bias.zero_()
-        for i in range(3):
-            first.weight[2 * i, d + i], first.weight[2 * i + 1, d + i] = 1.0, -1.0
-        first.weight[6, 0], first.weight[7, 0] = 1.0, -1.0
-        second.weight.copy_(torch.eye(16))
-        second.bias.zero_()
-        decoder.head.weight.zero_()
-        decoder.head.weight[0, :6] = 1.0
-        decoder.head.weight[0, 6], decoder.head.weight[0, 7] = 0.2, -0.2
-        decoder.head.bias.fill_(-0.5)
-    return DeepSdfModel(decoder, torch.zeros(2, d), {"name": name, "category": "chair"})
-
-
 @pytest.fixture(scope="module")
 def tiny_model_path(tmp_path_factory):
     from jsrte.model.checkpoint import load_model, save_model
 
     path = tmp_path_factory.mktemp("model") / "tiny.safetensors"
-    save_model(octahedron_model(), path)
+    save_model(octahedron_model(name="tiny"), path)
     load_model(path)
     return path
 

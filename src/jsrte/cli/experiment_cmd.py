@@ -81,7 +81,7 @@ def synthetic_command(
     random transforms from random initializations around the truth."""
     from dataclasses import replace
 
-    from jsrte.experiments.synthetic import CONFIG_NAME, RUNS_NAME, SUMMARY_MD, SyntheticConfig, run_synthetic
+    from jsrte.experiments.synthetic import RUNS_NAME, SUMMARY_MD, SyntheticConfig, run_synthetic
     from jsrte.io import output_dir
     from jsrte.shapes import CATEGORIES
 
@@ -106,8 +106,6 @@ def synthetic_command(
         seed=seed, resolution=resolution)
     if resume and overwrite:
         raise JsrteError("--resume continues the run in --out, --overwrite replaces it: give one")
-    if resume and not (out / CONFIG_NAME).is_file():
-        raise JsrteError(f"nothing to resume ({CONFIG_NAME} missing)", out)
     if not resume:
         _check_out(out, SUMMARY_MD, overwrite)
         if (out / RUNS_NAME).exists() and not overwrite:

@@ -1,6 +1,6 @@
 """Fit settings variants on prepared scans: F@5% against the complete true shape, time, evaluations.
 
-How the session-4 defaults were chosen (docs/presets.md). First make the query files with
+How the defaults of `fast` are chosen (docs/presets.md). First make the query files with
 ``bench_presets.py prepare`` (held-out chairs; the tuning set is shapes 100..119, scan seed 5,
 which Table 2 (shapes 0..29) does not use), then run variants of the ``fast`` fit settings::
 

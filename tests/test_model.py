@@ -121,7 +121,7 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
     subprocess.run(_train_cmd(reference, steps), check=True, env=env, capture_output=True)
     killed = tmp_path / "killed"
     proc = subprocess.Popen(_train_cmd(killed, steps), env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True)
+                            stderr=subprocess.DEVNULL, process_group=0)
     deadline = time.time() + 240
     while _state_step(killed) < 30 and time.time() < deadline and proc.poll() is None:
         time.sleep(0.05)

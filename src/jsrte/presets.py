@@ -41,7 +41,7 @@ class ScanSdf:
     n_ray_freespace: int = 0
     """Beyond the paper (0 in ``paper``): samples on the sensor's lines of sight, in front of what
     each viewpoint saw (only when the viewpoints are known); ``fast`` has LINE_OF_SIGHT_SAMPLES
-    (session 6: +0.018 mean F@5% on 20 held-out tuning scans with the near-floor bound, no yaw
+    (+0.018 mean F@5% on 20 held-out tuning scans with the near-floor bound, no yaw
     flipped; docs/presets.md). ``jsrte fit --line-of-sight / --no-line-of-sight`` overrides."""
     ray_per_point: float = 3.0
     """At most this many ray samples per object point: a sparse scan (a far or small object)

@@ -31,7 +31,7 @@ def run_ray(jobs: Iterable[ScanJob], blob: ModelBlob, *, address: str, workers: 
     ``ray://HOST:10001``, or ``local``), calling ``on_done`` in this process as each ends.
 
     A task whose worker dies is retried by Ray up to ``retries`` times; a task that still
-    fails becomes a failed outcome. Uses the Ray session already started in this process,
+    fails becomes a failed outcome. Uses the Ray runtime already started in this process,
     if any, and leaves it running.
     """
     ray = import_ray()

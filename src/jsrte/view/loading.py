@@ -435,3 +435,30 @@ def _load_code(entry: FitEntry) -> FitItem:
     item.numbers = {"class": code.model_name, "scale": f"{t.s:.4f}", "rotation": f"{angle:.1f}°",
                     "latent": f"{code.latent.size} values"}
     return item
+
+
+# -- a result in memory ---------------------------------------------------------------------------
+
+def item_from_result(name: str, result: Any, *, scan: np.ndarray | None = None, truth: Any = None,
+                     floor: Plane | None = None, fscore: float | None = None,
+                     max_scan_points: int = 20_000) -> FitItem:
+    """A FitItem from a ``FitResult`` held in memory (the experiments'), with its scan (n, 3),
+    true mesh, floor and F@5% against the truth where known."""
+    t = result.transform
+    poses = [Pose(float(t.s), np.asarray(t.R), np.asarray(t.t), "winner", float(result.loss), True)]
+    winner_index = result.info.get("winner_hypothesis")
+    poses += [Pose(float(h.transform.s), np.asarray(h.transform.R), np.asarray(h.transform.t),
+                   f"hypothesis {h.index}", float(h.loss))
+              for h in result.hypotheses if h.transform is not None and h.index != winner_index]
+    item = FitItem(name, poses=poses, truth=truth, floor=floor, mesh=result.mesh)
+    if scan is not None:
+        item.scan = scan if len(scan) <= max_scan_points else scan[
+            np.random.default_rng(0).choice(len(scan), max_scan_points, replace=False)]
+    if item.mesh is None:
+        item.problems.append(f"{name}: the {result.method} surface is empty; no mesh to show")
+    fit = {"model": result.info.get("model", "?"), "method": result.method, "scale": t.s, "loss": result.loss,
+           "winner_hypothesis": winner_index, "hypotheses": result.hypotheses,
+           **({"theta": result.angles["theta"]} if result.angles else {}),
+           **({"truth": {"fscore": fscore}} if fscore is not None else {})}
+    item.numbers = _numbers(fit, item)
+    return item

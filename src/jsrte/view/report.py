@@ -71,6 +71,35 @@ def write_report(items: list[FitItem], out: str | Path, *, title: str, overwrite
     return len(data)
 
 
+def write_batch_report(folder: str | Path, *, say: Any = print) -> Path | None:
+    """``folder/report.html`` for the fits of a ``fit-many`` output (replacing that command's own
+    earlier report); None, and nothing written, when no fit there can be read."""
+    from jsrte.view.loading import find_fits, load_items
+
+    folder = Path(folder)
+    try:
+        items = load_items(find_fits(folder))
+    except JsrteError:
+        return None
+    out = folder / REPORT_NAME
+    size = write_report(items, out, title=f"jsrte fit-many: {folder.resolve().name}", overwrite=True)
+    say(f"wrote {out} ({size / 1e6:.2f} MB)")
+    return out
+
+
+def overlay_png(mesh: Any, points: np.ndarray, up: np.ndarray | None) -> bytes:
+    """A small two-view overlay (PNG bytes) of ``mesh`` and ``points`` (n, 3), for a thumbnail."""
+    import tempfile
+
+    from jsrte.viz import render_overlay
+
+    with tempfile.TemporaryDirectory(prefix="jsrte-thumbnail-") as tmp:
+        path = Path(tmp) / "overlay.png"
+        render_overlay(mesh, points, path, up=(0.0, 1.0, 0.0) if up is None else tuple(np.asarray(up, float)),
+                       views=2, size=(320, 240))
+        return path.read_bytes()
+
+
 def render_report(items: list[FitItem], *, title: str, thumbnails: dict[str, bytes] | None = None) -> str:
     """The report page of ``items`` as one HTML string."""
     detail = Detail.for_fits(len(items))
@@ -91,60 +120,65 @@ def render_report(items: list[FitItem], *, title: str, thumbnails: dict[str, byt
 # -- drawing data -------------------------------------------------------------------------------
 
 def _fit_data(item: FitItem, detail: Detail) -> dict[str, Any]:
-    """One fit's plotly traces (JSON-ready, arrays as base64 typed arrays), camera and numbers."""
-    import plotly.graph_objects as go
-    import plotly.io as pio
-
+    """One fit's plotly.js traces (arrays as base64 typed arrays), camera and numbers."""
     traces = []
     if item.mesh is not None:
-        traces.append(_mesh_trace(go, decimated(item.mesh, detail.mesh_faces), "retrieved mesh", MESH_COLOUR, 1.0))
+        traces.append(_mesh_trace(decimated(item.mesh, detail.mesh_faces), "retrieved mesh", MESH_COLOUR, 1.0))
     if item.truth is not None:
-        traces.append(_mesh_trace(go, decimated(item.truth, detail.truth_faces), "true mesh", TRUTH_COLOUR, 0.35))
+        traces.append(_mesh_trace(decimated(item.truth, detail.truth_faces), "true mesh", TRUTH_COLOUR, 0.35))
     if item.scan is not None:
-        traces.append(_points_trace(go, item, detail.points))
+        traces.append(_points_trace(item, detail.points))
     centre, radius = _extent(item)
     if item.floor is not None:
-        traces.append(_floor_trace(go, item, centre, radius))
-    figure = json.loads(pio.to_json(go.Figure(data=traces, layout={"template": "none"}), validate=False))
+        traces.append(_floor_trace(item, centre, radius))
     up = item.up if item.up is not None else np.array([0.0, 1.0, 0.0])
-    return {"name": item.name, "traces": figure["data"], "up": [float(x) for x in up],
+    return {"name": item.name, "traces": traces, "up": [float(x) for x in up],
             "eye": [float(x) for x in _eye_direction(up)], "numbers": item.numbers, "problems": item.problems}
 
 
-def _mesh_trace(go: Any, mesh: Any, name: str, colour: str, opacity: float) -> Any:
-    v = np.asarray(mesh.vertices, dtype=np.float32)
-    f = np.asarray(mesh.faces)
-    f = f.astype(np.uint16 if len(v) < 65_536 else np.uint32)
-    return go.Mesh3d(x=v[:, 0], y=v[:, 1], z=v[:, 2], i=f[:, 0], j=f[:, 1], k=f[:, 2], name=name, color=colour,
-                     opacity=opacity, flatshading=True, showlegend=True, hoverinfo="skip",
-                     lighting={"ambient": 0.55, "diffuse": 0.8, "specular": 0.1})
+def _typed(array: np.ndarray) -> dict[str, str]:
+    """An array as plotly.js's base64 typed-array form (float32, or the smallest unsigned integer)."""
+    array = np.asarray(array)
+    if array.dtype.kind == "f":
+        array, dtype = array.astype("<f4"), "f4"
+    else:
+        array, dtype = (array.astype("<u2"), "u2") if array.max(initial=0) < 65_536 else (array.astype("<u4"), "u4")
+    return {"dtype": dtype, "bdata": base64.b64encode(np.ascontiguousarray(array).tobytes()).decode()}
 
 
-def _points_trace(go: Any, item: FitItem, max_points: int) -> Any:
+def _mesh_trace(mesh: Any, name: str, colour: str, opacity: float) -> dict[str, Any]:
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    return {"type": "mesh3d", "name": name, "x": _typed(v[:, 0]), "y": _typed(v[:, 1]), "z": _typed(v[:, 2]),
+            "i": _typed(f[:, 0]), "j": _typed(f[:, 1]), "k": _typed(f[:, 2]), "color": colour, "opacity": opacity,
+            "flatshading": False, "showlegend": True, "hoverinfo": "skip",
+            "lighting": {"ambient": 0.5, "diffuse": 0.9, "specular": 0.15, "roughness": 0.6},
+            "lightposition": {"x": 1000, "y": 2000, "z": 3000}}
+
+
+def _points_trace(item: FitItem, max_points: int) -> dict[str, Any]:
     points = coloured_scan(item.scan, item.mesh, max_points)
     p = points.points
     if item.mesh is None:
-        marker = {"size": 1.6, "color": "rgb(150,150,150)"}
+        marker: dict[str, Any] = {"size": 1.6, "color": "rgb(150,150,150)"}
     else:
-        marker = {"size": 1.6, "color": (points.distances * 100).astype(np.float32), "cmin": 0.0,
-                  "cmax": float(points.far * 100), "colorscale": [[0, "rgb(40,90,220)"], [0.5, "rgb(250,200,40)"],
-                                                                  [1, "rgb(220,40,40)"]],
+        marker = {"size": 1.6, "color": _typed(points.distances * 100), "cmin": 0.0, "cmax": float(points.far * 100),
+                  "colorscale": [[0, "rgb(40,90,220)"], [0.5, "rgb(250,200,40)"], [1, "rgb(220,40,40)"]],
                   "colorbar": {"title": {"text": "cm to surface"}, "thickness": 12, "len": 0.5}}
-    return go.Scatter3d(x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="markers", marker=marker, name="scan points",
-                        hoverinfo="skip")
+    return {"type": "scatter3d", "mode": "markers", "name": "scan points", "x": _typed(p[:, 0]),
+            "y": _typed(p[:, 1]), "z": _typed(p[:, 2]), "marker": marker, "hoverinfo": "skip"}
 
 
-def _floor_trace(go: Any, item: FitItem, centre: np.ndarray, radius: float) -> Any:
+def _floor_trace(item: FitItem, centre: np.ndarray, radius: float) -> dict[str, Any]:
     """The floor as a square of side 4 radii under the object."""
     normal = item.floor.normal
     a = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 0.0, 1.0])
     a /= np.linalg.norm(a)
     b = np.cross(normal, a)
     on_floor = centre - (centre @ normal - item.floor.offset) * normal
-    corners = np.array([on_floor + 2 * radius * (sa * a + sb * b) for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))],
-                       dtype=np.float32)
-    return go.Mesh3d(x=corners[:, 0], y=corners[:, 1], z=corners[:, 2], i=[0, 0], j=[1, 2], k=[2, 3], name="floor",
-                     color="rgb(200,200,200)", opacity=0.35, showlegend=True, hoverinfo="skip")
+    corners = np.array([on_floor + 2 * radius * (sa * a + sb * b) for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+    return {"type": "mesh3d", "name": "floor", "x": corners[:, 0].tolist(), "y": corners[:, 1].tolist(),
+            "z": corners[:, 2].tolist(), "i": [0, 0], "j": [1, 2], "k": [2, 3], "color": "rgb(200,200,200)",
+            "opacity": 0.35, "showlegend": True, "hoverinfo": "skip"}
 
 
 def _extent(item: FitItem) -> tuple[np.ndarray, float]:
@@ -197,7 +231,7 @@ def _plotly_gzip_base64() -> str:
     if "js" not in _PLOTLY_CACHE:
         from plotly.offline import get_plotlyjs
 
-        _PLOTLY_CACHE["js"] = base64.b64encode(gzip.compress(get_plotlyjs().encode(), 9, mtime=0)).decode()
+        _PLOTLY_CACHE["js"] = base64.b64encode(gzip.compress(get_plotlyjs().encode(), 6, mtime=0)).decode()
     return _PLOTLY_CACHE["js"]
 
 

@@ -15,7 +15,7 @@ import io
 import signal
 import socket
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -276,25 +276,26 @@ def serve(collection: Collection, *, host: str = "127.0.0.1", port: int = 8080,
         if not viewer.item(0).fit_read:
             raise JsrteError(f"no fit could be read ({viewer.item(0).problems[0]})", collection.path)
         viewer.show(0)
-        shown = f"[{host}]" if ":" in host else host
-        say(f"jsrte view: {len(collection.entries)} fit{'s' * (len(collection.entries) != 1)} at "
-            f"http://{shown}:{server.get_port()} (Ctrl-C to stop)")
-        _wait(stop)
+        with _stopped_by_signals(stop):
+            shown = f"[{host}]" if ":" in host else host
+            say(f"jsrte view: {len(collection.entries)} fit{'s' * (len(collection.entries) != 1)} at "
+                f"http://{shown}:{server.get_port()} (Ctrl-C to stop)")
+            while not stop.wait(0.25):
+                pass
     finally:
         with contextlib.redirect_stdout(io.StringIO()):
             server.stop()
 
 
-def _wait(stop: threading.Event) -> None:
-    """Block until ``stop`` is set, Ctrl-C or SIGTERM (on the main thread)."""
+@contextlib.contextmanager
+def _stopped_by_signals(stop: threading.Event) -> Iterator[None]:
+    """Within: Ctrl-C (SIGINT) and SIGTERM set ``stop`` (on the main thread; elsewhere only ``stop`` does)."""
     if threading.current_thread() is not threading.main_thread():
-        stop.wait()
+        yield
         return
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        while not stop.wait(0.25):
-            pass
-    except KeyboardInterrupt:
-        pass
+        yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)

@@ -1,0 +1,140 @@
+"""Viewer and report numbers (run by hand; needs Debian's chromium for the browser parts).
+
+    PYTHONPATH=src python benchmarks/bench_view.py --folder /tmp/view-bench [--fits 30]
+
+1. Builds ``--fits`` fit folders once (kept in ``--folder``; reruns reuse them): held-out chairs
+   (evaluation seed set) scanned by the virtual scanner, each fitted with the ``smoke`` fit
+   settings but meshes extracted at the default resolution (128, as the ``fast`` preset's), and
+   written as ``jsrte fit`` writes them (fit.json, shape.ply, overlay.png).
+2. ``jsrte view FIT``: seconds from starting the command to the server answering HTTP with the
+   first fit's scene built (the command prints its URL only then), and to the first frame drawn
+   in headless Chromium (the canvas shows the mesh's colour).
+3. ``jsrte report FOLDER``: the file's size, and the seconds headless Chromium takes from
+   navigating to it to the 3D view drawn.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def build_fits(folder: Path, n: int) -> Path:
+    """``folder/fits/<name>/`` for ``n`` virtual chair scans (kept between runs)."""
+    from jsrte import presets
+    from jsrte.experiments.scans import virtual_cases
+    from jsrte.fit import fit
+    from jsrte.fit.outputs import write_fit_outputs
+    from jsrte.model.registry import resolve_model
+    from jsrte.scans.io import load_scan
+
+    fits = folder / "fits"
+    todo = [i for i in range(n) if not (fits / f"chair_{i:03d}" / "fit.json").is_file()]
+    if not todo:
+        return fits
+    presets.PRESETS["bench-view"] = replace(presets.SMOKE, name="bench-view",
+                                            fit=replace(presets.SMOKE.fit, extract_resolution=128))
+    model = resolve_model("chair")
+    for i in todo:
+        case = virtual_cases("chair", 1, folder / "scans", first=i)[0]
+        started = time.perf_counter()
+        result = fit(case.path, model=model, preset="bench-view")
+        out = fits / case.name
+        out.mkdir(parents=True, exist_ok=True)
+        write_fit_outputs(result, out, query_points=load_scan(case.path).points, up=result.info.get("up"),
+                          extra={"input": str(case.path.resolve())})
+        print(f"fitted {case.name} in {time.perf_counter() - started:.1f} s", flush=True)
+    return fits
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def measure_view(fit_folder: Path) -> dict[str, float]:
+    """Seconds from starting ``jsrte view`` to HTTP with the scene built, and to the first frame drawn."""
+    from jsrte.view.browser import HeadlessChromium, find_chromium
+
+    port = free_port()
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    started = time.perf_counter()
+    process = subprocess.Popen([sys.executable, "-m", "jsrte.cli", "view", str(fit_folder), "--port", str(port)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        line = process.stdout.readline()
+        if "http://" not in line:
+            raise SystemExit(f"jsrte view did not start: {line}{process.stderr.read()}")
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10) as response:
+            response.read()
+        served = time.perf_counter() - started
+        numbers = {"view_served_s": served}
+        if find_chromium():
+            with HeadlessChromium(width=1000, height=700) as browser:
+                browser.call("Page.navigate", {"url": f"http://127.0.0.1:{port}/"})
+                while mesh_pixels(browser.screenshot()) < 500:
+                    if time.perf_counter() - started > 60:
+                        raise SystemExit("the viewer drew no mesh within 60 s")
+                    time.sleep(0.1)
+                numbers["view_first_frame_s"] = time.perf_counter() - started
+        return numbers
+    finally:
+        process.send_signal(2)
+        process.wait(20)
+
+
+def mesh_pixels(png: bytes) -> int:
+    """Pixels of the retrieved mesh's orange in a screenshot."""
+    from PIL import Image
+
+    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    return int(((r > 90) & (g > 0.35 * r) & (g < 0.8 * r) & (b < 0.6 * g)).sum())
+
+
+def measure_report(fits: Path, folder: Path) -> dict[str, float]:
+    """Size of ``jsrte report`` on the fits, seconds to write it and to draw it in headless Chromium."""
+    from jsrte.view.browser import HeadlessChromium, find_chromium
+
+    out = folder / "report.html"
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    started = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "jsrte.cli", "report", str(fits), "--out", str(out), "--overwrite"],
+                   check=True, env=env)
+    numbers = {"report_write_s": time.perf_counter() - started, "report_mb": out.stat().st_size / 1e6}
+    if find_chromium():
+        with HeadlessChromium(width=1200, height=900) as browser:
+            numbers["report_open_s"] = browser.open(
+                out.resolve().as_uri(), until="document.body.dataset.ready === '1' && "
+                                               "document.querySelector('#plot canvas')", timeout=60)
+            numbers["report_js_errors"] = len(browser.errors())
+    return numbers
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--folder", type=Path, required=True)
+    parser.add_argument("--fits", type=int, default=30)
+    args = parser.parse_args()
+    fits = build_fits(args.folder, args.fits)
+    first = sorted(p for p in fits.iterdir() if (p / "fit.json").is_file())[0]
+    results = measure_view(first) | measure_report(fits, args.folder)
+    for key, value in results.items():
+        print(f"{key}: {value:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -16,7 +16,6 @@
 from __future__ import annotations
 
 import argparse
-import io
 import os
 import socket
 import subprocess
@@ -25,8 +24,6 @@ import time
 import urllib.request
 from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -67,7 +64,7 @@ def free_port() -> int:
 
 def measure_view(fit_folder: Path) -> dict[str, float]:
     """Seconds from starting ``jsrte view`` to HTTP with the scene built, and to the first frame drawn."""
-    from jsrte.view.browser import HeadlessChromium, find_chromium
+    from jsrte.view.browser import HeadlessChromium, find_chromium, mesh_pixels
 
     port = free_port()
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
@@ -85,7 +82,7 @@ def measure_view(fit_folder: Path) -> dict[str, float]:
         if find_chromium():
             with HeadlessChromium(width=1000, height=700) as browser:
                 browser.call("Page.navigate", {"url": f"http://127.0.0.1:{port}/"})
-                while mesh_pixels(browser.screenshot()) < 500:
+                while mesh_pixels(browser.screenshot())[0] < 500:
                     if time.perf_counter() - started > 60:
                         raise SystemExit("the viewer drew no mesh within 60 s")
                     time.sleep(0.1)
@@ -94,15 +91,6 @@ def measure_view(fit_folder: Path) -> dict[str, float]:
     finally:
         process.send_signal(2)
         process.wait(20)
-
-
-def mesh_pixels(png: bytes) -> int:
-    """Pixels of the retrieved mesh's orange in a screenshot."""
-    from PIL import Image
-
-    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
-    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    return int(((r > 90) & (g > 0.35 * r) & (g < 0.8 * r) & (b < 0.6 * g)).sum())
 
 
 def measure_report(fits: Path, folder: Path) -> dict[str, float]:

@@ -185,6 +185,18 @@ def test_report_of_twenty_fits_stays_under_5_mb(tmp_path):
     assert len(items) == 1
 
 
+def test_fit_many_output_gets_its_report_beside_summary_csv(tmp_path):
+    from jsrte.view.report import write_batch_report
+
+    out = make_batch(tmp_path, 2)
+    lines = []
+    assert write_batch_report(out, say=lines.append) == out / "report.html"
+    assert [f["name"] for f in _report_data((out / "report.html").read_text())["fits"]] == ["s0", "s1"]
+    assert lines == [f"wrote {out / 'report.html'} ({(out / 'report.html').stat().st_size / 1e6:.2f} MB)"]
+    assert write_batch_report(tmp_path / "scans") is None  # no fit there: nothing written
+    assert not (tmp_path / "scans" / "report.html").exists()
+
+
 def test_report_refuses_to_overwrite_and_writes_nothing_without_a_fit(tmp_path, run_cli, fit_folder):
     target = tmp_path / "r.html"
     target.write_text("mine")

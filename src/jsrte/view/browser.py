@@ -163,3 +163,24 @@ class HeadlessChromium:
                 entry = params["entry"]
                 found.append(f"{entry.get('source')}: {entry.get('text')} {entry.get('url', '')}".strip())
         return found
+
+
+def mesh_pixels(png: bytes, box: tuple[int, int, int, int] | None = None) -> tuple[int, tuple[float, float] | None]:
+    """Pixels showing the retrieved mesh's orange (any shade) in a screenshot, within ``box``
+    (left, top, width, height; default the whole image): their count and their centroid (x, y)
+    as fractions of the box (None when there are none)."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(np.int32)
+    if box is not None:
+        left, top, width, height = box
+        rgb = rgb[top:top + height, left:left + width]
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    orange = (r > 90) & (g > 0.35 * r) & (g < 0.78 * r) & (b < 0.6 * g)
+    ys, xs = np.nonzero(orange)
+    if len(xs) == 0:
+        return 0, None
+    return len(xs), (float(xs.mean()) / rgb.shape[1], float(ys.mean()) / rgb.shape[0])

@@ -1,6 +1,6 @@
 """Viewer and report numbers (run by hand; needs Debian's chromium for the browser parts).
 
-    PYTHONPATH=src python benchmarks/bench_view.py --folder /tmp/view-bench [--fits 30]
+    PYTHONPATH=src python benchmarks/bench_view.py --folder /tmp/view-bench [--fits 30] [--figures docs/figures]
 
 1. Builds ``--fits`` fit folders once (kept in ``--folder``; reruns reuse them): held-out chairs
    (evaluation seed set) scanned by the virtual scanner, each fitted with the ``smoke`` fit
@@ -11,11 +11,14 @@
    in headless Chromium (the canvas shows the mesh's colour).
 3. ``jsrte report FOLDER``: the file's size, and the seconds headless Chromium takes from
    navigating to it to the 3D view drawn.
+
+With ``--figures DIR`` it also saves a screenshot of each (viewer.png, report.png) there.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import socket
 import subprocess
@@ -62,7 +65,17 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def measure_view(fit_folder: Path) -> dict[str, float]:
+def save_figure(png: bytes, path: Path, width: int) -> None:
+    """A screenshot downscaled to ``width`` pixels and reduced to 256 colours (small for docs/)."""
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(png)).convert("RGB")
+    image.thumbnail((width, width))
+    image.quantize(colors=256).save(path, optimize=True)
+    print(f"saved {path} ({path.stat().st_size // 1024} KB)")
+
+
+def measure_view(fit_folder: Path, figures: Path | None = None) -> dict[str, float]:
     """Seconds from starting ``jsrte view`` to HTTP with the scene built, and to the first frame drawn."""
     from jsrte.view.browser import HeadlessChromium, find_chromium, mesh_pixels
 
@@ -87,13 +100,18 @@ def measure_view(fit_folder: Path) -> dict[str, float]:
                         raise SystemExit("the viewer drew no mesh within 60 s")
                     time.sleep(0.1)
                 numbers["view_first_frame_s"] = time.perf_counter() - started
+                if figures is not None:
+                    browser.evaluate("document.querySelectorAll('.mantine-Notification-closeButton')"
+                                     ".forEach(b => b.click())")  # the 'software WebGL' notice
+                    time.sleep(2.0)
+                    save_figure(browser.screenshot(), figures / "viewer.png", 900)
         return numbers
     finally:
         process.send_signal(2)
         process.wait(20)
 
 
-def measure_report(fits: Path, folder: Path) -> dict[str, float]:
+def measure_report(fits: Path, folder: Path, figures: Path | None = None) -> dict[str, float]:
     """Size of ``jsrte report`` on the fits, seconds to write it and to draw it in headless Chromium."""
     from jsrte.view.browser import HeadlessChromium, find_chromium
 
@@ -104,11 +122,14 @@ def measure_report(fits: Path, folder: Path) -> dict[str, float]:
                    check=True, env=env)
     numbers = {"report_write_s": time.perf_counter() - started, "report_mb": out.stat().st_size / 1e6}
     if find_chromium():
-        with HeadlessChromium(width=1200, height=900) as browser:
+        with HeadlessChromium(width=1200, height=1000) as browser:
             numbers["report_open_s"] = browser.open(
                 out.resolve().as_uri(), until="document.body.dataset.ready === '1' && "
                                                "document.querySelector('#plot canvas')", timeout=60)
             numbers["report_js_errors"] = len(browser.errors())
+            if figures is not None:
+                time.sleep(2.0)
+                save_figure(browser.screenshot(), figures / "report.png", 900)
     return numbers
 
 
@@ -116,10 +137,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--folder", type=Path, required=True)
     parser.add_argument("--fits", type=int, default=30)
+    parser.add_argument("--figures", type=Path, help="Save viewer.png and report.png screenshots here.")
     args = parser.parse_args()
     fits = build_fits(args.folder, args.fits)
     first = sorted(p for p in fits.iterdir() if (p / "fit.json").is_file())[0]
-    results = measure_view(first) | measure_report(fits, args.folder)
+    results = measure_view(first, args.figures) | measure_report(fits, args.folder, args.figures)
     for key, value in results.items():
         print(f"{key}: {value:.2f}")
 

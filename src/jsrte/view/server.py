@@ -273,9 +273,12 @@ def serve(collection: Collection, *, host: str = "127.0.0.1", port: int = 8080,
             raise JsrteError(f"port {port} on {host} is already in use; pass --port with a free port, "
                              f"e.g. --port {port + 1}")
         viewer = Viewer(server, collection, warn=warn)
-        if not viewer.item(0).fit_read:
+        first = next((i for i in range(len(collection.entries)) if viewer.item(i).fit_read), None)
+        if first is None:
             raise JsrteError(f"no fit could be read ({viewer.item(0).problems[0]})", collection.path)
-        viewer.show(0)
+        viewer.show(first)
+        if first:  # its callback draws it again: harmless
+            viewer.dropdown.value = list(viewer.dropdown.options)[first]
         with _stopped_by_signals(stop):
             shown = f"[{host}]" if ":" in host else host
             say(f"jsrte view: {len(collection.entries)} fit{'s' * (len(collection.entries) != 1)} at "

@@ -70,6 +70,11 @@ class HeadlessChromium:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    @property
+    def pid(self) -> int:
+        """The browser's process id (its renderer and GPU processes are its children)."""
+        return self._process.pid
+
     def close(self) -> None:
         """Stop the browser and remove its profile."""
         socket = getattr(self, "_socket", None)

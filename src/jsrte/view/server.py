@@ -159,7 +159,7 @@ class Viewer:
             truth = decimated(item.truth, MAX_FACES)
             self._add("true mesh", scene.add_mesh_simple("/truth", np.asarray(truth.vertices, np.float32),
                                                          np.asarray(truth.faces, np.uint32), color=TRUTH_COLOUR,
-                                                         opacity=0.45, side="double"))
+                                                         opacity=0.3, side="double"))
 
     def _draw_floor(self, item: FitItem, centre: np.ndarray, radius: float) -> None:
         if item.floor is None:

@@ -227,7 +227,35 @@ def _serve_in_thread(collection, port):
     return thread, stop, ready, lines
 
 
-def test_viewer_serves_its_page_and_steps_through_the_fits(tmp_path):
+def test_viewer_draws_every_layer_steps_through_the_fits_and_names_what_is_missing(tmp_path):
+    import viser
+
+    from jsrte.view.server import Viewer
+
+    out = make_batch(tmp_path, 2)
+    (out / "s1" / "shape.ply").unlink()
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        warnings = []
+        viewer = Viewer(server, find_fits(out), warn=warnings.append)
+        viewer.show(0)
+        drawn = {name: len(nodes) for name, nodes in viewer.layers.items()}
+        assert drawn == {"scan points": 1, "retrieved mesh": 1, "true mesh": 1, "floor": 1, "winning pose": 1,
+                         "other hypotheses": 1, "other objects": 0}
+        assert viewer.layers["winning pose"][0].visible and not viewer.layers["other hypotheses"][0].visible
+        assert "| scale | 0.5000 |" in viewer.numbers.content and warnings == []
+        viewer.toggles["scan points"].value = False
+        viewer._set_visible("scan points")
+        assert not viewer.layers["scan points"][0].visible
+        viewer.show(1)
+        assert viewer.layers["retrieved mesh"] == [] and len(viewer.layers["true mesh"]) == 1
+        assert not viewer.layers["scan points"][0].visible  # the toggle holds across fits
+        assert "missing:" in viewer.numbers.content and "s1/shape.ply: missing" in warnings[0]
+    finally:
+        server.stop()
+
+
+def test_viewer_serves_its_page(tmp_path):
     out = make_batch(tmp_path, 2)
     (out / "s1" / "shape.ply").write_text("broken")
     port = free_port()

@@ -280,7 +280,7 @@ def serve(collection: Collection, *, host: str = "127.0.0.1", port: int = 8080,
         if first:  # its callback draws it again: harmless
             viewer.dropdown.value = list(viewer.dropdown.options)[first]
         with _stopped_by_signals(stop):
-            shown = f"[{host}]" if ":" in host else host
+            shown = "localhost" if host in ("0.0.0.0", "::") else f"[{host}]" if ":" in host else host
             say(f"jsrte view: {len(collection.entries)} fit{'s' * (len(collection.entries) != 1)} at "
                 f"http://{shown}:{server.get_port()} (Ctrl-C to stop)")
             while not stop.wait(0.25):

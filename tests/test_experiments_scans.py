@@ -40,6 +40,8 @@ def test_worker_processes_give_the_rows_of_one_process(tmp_path, tiny_model, cas
     for key in ("status", "truth_fscore", "truth_rotation_error_deg", "scan_fscore"):
         assert [r.get(key) for r in a] == [r.get(key) for r in b], key
     assert (parallel / "table.md").is_file() and len(list(parallel.glob("figure_*.png"))) == 1
+    page = (serial / "report.html").read_text()  # beside results.csv: each scan's fit, truth and thumbnail
+    assert all(f'"name": "{c.name}"' in page for c in cases) and page.count("data:image/png;base64,") == 3
 
 
 def test_experiment_cli_refuses_zero_jobs(tmp_path, run_cli):

@@ -26,6 +26,8 @@ def scans_command(
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     jobs: int = typer.Option(1, help="Scans run in this many processes at once (threads shared among them)."),
+    html_report: bool = typer.Option(True, "--report/--no-report",
+                                     help="Also write report.html beside results.csv (3D view of each fit)."),
 ) -> None:
     """Every method on every scan; F@5% against the true shape and the scan, times, figures."""
     from jsrte.baselines import BASELINE_NAMES
@@ -44,5 +46,5 @@ def scans_command(
         cases = (folder_cases(folder) if folder is not None
                  else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed))
         run_scan_experiment(cases, list(chosen), folder_out, model=loaded, preset=preset, seed=seed,
-                            jobs=jobs, threads=threads or None)
+                            jobs=jobs, threads=threads or None, report=html_report)
     typer.echo((out / "table.md").read_text())

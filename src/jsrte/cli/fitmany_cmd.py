@@ -27,6 +27,8 @@ def fit_many_command(
     hypotheses: int = typer.Option(None, help="Number of θ starts (default: the preset's grid)."),
     retries: int = typer.Option(2, help="Times a scan is sent again after its worker process died."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
+    html_report: bool = typer.Option(True, "--report/--no-report",
+                                     help="Also write report.html beside summary.csv (as jsrte report)."),
 ) -> None:
     """Fit every scan; skip those already done in --out; a failed scan is recorded and the rest go on.
 
@@ -40,5 +42,9 @@ def fit_many_command(
                       progress=progress)
     typer.echo(f"{len(report.rows)} scans: {report.fitted} fitted now, {report.skipped} done before, "
                f"{report.failed} failed; wrote {report.summary}")
+    if html_report:
+        from jsrte.view.report import write_batch_report
+
+        write_batch_report(out, say=typer.echo)
     if report.failed:
         raise typer.Exit(1)

@@ -86,8 +86,10 @@ def run_method(method: str, case: ScanCase, *, model: object, database: object, 
 
 def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *, model: object,
                         preset: str = "fast", seed: int = 0, figure_scans: int = 4,
-                        progress: bool = True, jobs: int = 1, threads: int | None = None) -> list[dict]:
-    """Every method on every scan; writes results.csv, table.md, table.csv, figure PNGs.
+                        progress: bool = True, jobs: int = 1, threads: int | None = None,
+                        report: bool = True) -> list[dict]:
+    """Every method on every scan; writes results.csv, table.md, table.csv, figure PNGs and, with
+    ``report``, report.html (a 3D view of each scan's jsrte fit, as ``jsrte report``).
 
     With ``jobs`` > 1 the first scan runs here (it builds the baselines' database, descriptors
     and PointNet classifier into the on-disk cache), the others in ``jobs`` worker processes
@@ -99,11 +101,14 @@ def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *,
     context = _CaseContext(methods, model, database, preset, seed)
     rows: list[dict] = []
     figures: list[Path] = []
+    html = _HtmlReport() if report else None
 
     def record(case: ScanCase, case_rows: list[dict], results: dict) -> None:
         rows.extend(case_rows)
         if len(figures) < figure_scans:
             figures.append(_figure(case, _scan_points(case), results, methods, out))
+        if html is not None:
+            html.add(case, case_rows, results)
         _write_rows(rows, out / "results.csv")
 
     bar = tqdm(total=len(cases), desc="scans", disable=not progress)
@@ -117,7 +122,45 @@ def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *,
             bar.update(1)
     bar.close()
     _write_table(rows, methods, out, n_scans=len(cases))
+    if html is not None:
+        html.write(out / "report.html", title=f"jsrte experiment scans: {out.resolve().name}")
     return rows
+
+
+class _HtmlReport:
+    """report.html of a scan experiment: per scan, jsrte's fit (else the first method's) with the
+    scan, the true mesh and floor, every method's F@5% among the numbers, an overlay thumbnail."""
+
+    def __init__(self) -> None:
+        self.items: list = []
+        self.thumbnails: dict[str, bytes] = {}
+
+    def add(self, case: ScanCase, case_rows: list[dict], results: dict) -> None:
+        from jsrte.scans.io import read_scan_info
+        from jsrte.view.loading import Plane, item_from_result
+        from jsrte.view.report import overlay_png
+
+        if not results:
+            return
+        method = "jsrte" if "jsrte" in results else next(iter(results))
+        by_method = {r["method"]: r for r in case_rows}
+        info = read_scan_info(case.path)
+        floor = None if info is None else Plane(info.up, info.floor_offset)
+        item = item_from_result(case.name, results[method], scan=_scan_points(case),
+                                truth=None if case.truth is None else case.truth.mesh, floor=floor,
+                                fscore=by_method[method].get("truth_fscore"))
+        for other, row in by_method.items():
+            if other != method and row.get("truth_fscore") is not None:
+                item.numbers[f"F@5% {other}"] = f"{row['truth_fscore']:.3f}"
+        self.items.append(item)
+        points = _object_points(case, item.scan)
+        self.thumbnails[case.name] = overlay_png(item.mesh, points, None if info is None else info.up)
+
+    def write(self, path: Path, *, title: str) -> None:
+        from jsrte.view.report import write_report
+
+        if self.items:
+            write_report(self.items, path, title=title, overwrite=True, thumbnails=self.thumbnails)
 
 
 @dataclass

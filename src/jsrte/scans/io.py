@@ -10,12 +10,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from jsrte.errors import JsrteError
-from jsrte.geometry.sim3 import Sim3
+
+if TYPE_CHECKING:
+    from jsrte.geometry.sim3 import Sim3
 
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".pts")
 MESH_SUFFIXES = (".obj", ".off", ".stl")
@@ -92,6 +94,8 @@ def load_scan(
 
 def read_scan_info(ply_path: str | Path) -> ScanInfo | None:
     """The JSON a virtual scan wrote beside ``ply_path`` (``<stem>.json``), or None if absent."""
+    from jsrte.geometry.sim3 import Sim3
+
     json_path = Path(ply_path).with_suffix(".json")
     if not json_path.is_file():
         return None

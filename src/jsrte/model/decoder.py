@@ -14,6 +14,7 @@ from torch import nn
 from torch.nn.utils.parametrizations import weight_norm
 
 from jsrte.model.config import ARCHITECTURES, DecoderConfig
+from jsrte.timing import count_evaluations
 
 __all__ = ["ARCHITECTURES", "Decoder", "DecoderConfig", "count_parameters", "decoder_device"]
 
@@ -64,6 +65,7 @@ class Decoder(nn.Module):
 
     def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
         """SDF (n,) at ``points`` (n, 3) for per-point latent ``codes`` (n, d) or one code (d,)."""
+        count_evaluations(points.shape[:-1].numel())
         if codes.dim() == 1:
             codes = codes.expand(points.shape[0], -1)
         inputs = torch.cat([codes, self.encode_points(points)], dim=-1)

@@ -8,13 +8,16 @@ from jsrte.timing import OTHER, count_evaluations, profiling, stage, timed_stage
 
 
 class FakeClock:
-    """Stands in for the ``time`` module: ``perf_counter`` moves only when told to."""
+    """Stands in for the ``time`` module: its clocks move only when told to (CPU at twice the wall)."""
 
     def __init__(self) -> None:
         self.now = 100.0
 
     def perf_counter(self) -> float:
         return self.now
+
+    def process_time(self) -> float:
+        return 2 * self.now
 
 
 def test_nested_stages_count_exclusive_time(monkeypatch):
@@ -32,6 +35,7 @@ def test_nested_stages_count_exclusive_time(monkeypatch):
         with stage("outer"):  # a stage entered twice adds up
             clock.now += 2.0
     assert profile.seconds == {OTHER: 1.0, "outer": 4.5, "inner": 5.0}
+    assert profile.cpu_seconds == {OTHER: 2.0, "outer": 9.0, "inner": 10.0}
     assert profile.total_seconds == 10.5
 
 

@@ -31,11 +31,14 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 @dataclass
 class StageProfile:
-    """Seconds (exclusive, wall clock) and decoder evaluations per stage, in first-seen order."""
+    """Per stage, in first-seen order: seconds (exclusive, wall clock), CPU seconds (exclusive,
+    every thread of the process: about twice the wall time when two cores are busy, and less
+    sensitive than it to other processes' load) and decoder evaluations."""
 
     seconds: dict[str, float] = field(default_factory=dict)
+    cpu_seconds: dict[str, float] = field(default_factory=dict)
     evaluations: dict[str, int] = field(default_factory=dict)
-    _stack: list[list[Any]] = field(default_factory=list, repr=False)  # [name, start, time in children]
+    _stack: list[list[Any]] = field(default_factory=list, repr=False)  # name, starts, time in children
 
     @property
     def total_seconds(self) -> float:
@@ -46,20 +49,24 @@ class StageProfile:
         return sum(self.evaluations.values())
 
     def as_dict(self) -> dict[str, dict[str, float]]:
-        """{stage: {"seconds": s, "evaluations": n}} (JSON-ready)."""
+        """{stage: {"seconds": s, "cpu_seconds": c, "evaluations": n}} (JSON-ready)."""
         names = list(dict.fromkeys([*self.seconds, *self.evaluations]))
-        return {n: {"seconds": round(self.seconds.get(n, 0.0), 4), "evaluations": self.evaluations.get(n, 0)}
-                for n in names}
+        return {n: {"seconds": round(self.seconds.get(n, 0.0), 4),
+                    "cpu_seconds": round(self.cpu_seconds.get(n, 0.0), 4),
+                    "evaluations": self.evaluations.get(n, 0)} for n in names}
 
     def _enter(self, name: str) -> None:
-        self._stack.append([name, time.perf_counter(), 0.0])
+        self._stack.append([name, time.perf_counter(), time.process_time(), 0.0, 0.0])
 
     def _exit(self) -> None:
-        name, start, children = self._stack.pop()
+        name, start, cpu_start, children, cpu_children = self._stack.pop()
         total = time.perf_counter() - start
+        cpu_total = time.process_time() - cpu_start
         self.seconds[name] = self.seconds.get(name, 0.0) + total - children
+        self.cpu_seconds[name] = self.cpu_seconds.get(name, 0.0) + cpu_total - cpu_children
         if self._stack:
-            self._stack[-1][2] += total
+            self._stack[-1][3] += total
+            self._stack[-1][4] += cpu_total
 
     def _count(self, n: int) -> None:
         name = self._stack[-1][0] if self._stack else OTHER

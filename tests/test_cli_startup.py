@@ -47,6 +47,40 @@ def test_help_imports_no_heavy_library(args) -> None:
     assert outcome["heavy"] == []
 
 
+EVERY_HELP = """
+import json, sys
+import typer
+from jsrte.cli import _register, app
+_register()
+
+def paths(command, prefix):
+    if hasattr(command, "commands"):  # a group
+        for name, sub in command.commands.items():
+            yield from paths(sub, prefix + [name])
+    else:
+        yield prefix
+
+group = typer.main.get_command(app)
+shown = []
+for path in paths(group, []):
+    try:
+        group.main(path + ["--help"], prog_name="jsrte", standalone_mode=False)
+    except SystemExit:
+        pass
+    shown.append(" ".join(path))
+print(json.dumps({"commands": shown, "heavy": [m for m in json.loads(sys.argv[1]) if m in sys.modules]}))
+"""
+
+
+def test_every_command_help_imports_no_heavy_library() -> None:
+    """Whatever commands the app has (new ones included), their --help stays light."""
+    proc = subprocess.run([sys.executable, "-c", EVERY_HELP, json.dumps(HEAVY)], capture_output=True, text=True,
+                          env=ENV, timeout=120, check=True)
+    outcome = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert {"fit", "train", "demo", "experiment scans"} <= set(outcome["commands"])
+    assert outcome["heavy"] == []
+
+
 def test_import_jsrte_is_light() -> None:
     probe = f"import sys, jsrte; print([m for m in {HEAVY!r} if m in sys.modules])"
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,

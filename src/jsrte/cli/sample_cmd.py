@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from jsrte.cli import app
@@ -21,6 +20,8 @@ def sample(
     overwrite: bool = typer.Option(False, help="Replace an existing output file."),
 ) -> None:
     """SDF samples of one mesh in the normalized canonical frame (negative inside)."""
+    import numpy as np
+
     from jsrte.geometry.mesh import load_mesh
     from jsrte.sdf.mesh_sdf import sample_sdf
 

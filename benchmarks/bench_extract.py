@@ -1,10 +1,13 @@
-"""Dense vs coarse-to-fine marching cubes: wall time, SDF evaluations, and agreement of the meshes.
+"""Dense vs coarse-to-fine vs narrow-band marching cubes: wall time, SDF evaluations, agreement.
 
 Two SDFs: an analytic chair (a union of boxes: thin legs test that no part is lost) and a
 decoder-sized MLP (6 hidden layers of 256, a 64-d latent; random weights, its output added
-to a sphere's SDF so that a surface exists). Prints a markdown table.
+to a sphere's SDF so that a surface exists). ``--shipped`` adds shapes of the shipped models
+(their training codes). Prints a markdown table.
 
     .venv/bin/python benchmarks/bench_extract.py [--resolutions 128 256] [--threads 2]
+    .venv/bin/python benchmarks/bench_extract.py --resolutions 128 --no-synthetic \\
+        --shipped "chair:20,21,22;table:0;sofa:0;bed:0"
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import numpy as np
 import torch
 from pykdtree.kdtree import KDTree
 
-from jsrte.extract.marching import extract_coarse_to_fine, extract_dense
+from jsrte.extract.marching import extract_coarse_to_fine, extract_dense, extract_narrow_band
 
 CHAIR_BOXES = [  # (centre, half extents) in canonical units, +y up, back towards +z
     ((0.0, -0.05, 0.0), (0.35, 0.04, 0.33)),
@@ -60,6 +63,23 @@ def vertex_hausdorff(a, b) -> float:
     return float(max(KDTree(vb).query(va, k=1)[0].max(), KDTree(va).query(vb, k=1)[0].max()))
 
 
+def agreement(mesh, dense) -> str:
+    """How closely ``mesh`` matches the dense grid's mesh: area, vertex Hausdorff, F@5%, Chamfer."""
+    from jsrte.metrics.surface import fscore
+
+    f = fscore(mesh, dense, rng=np.random.default_rng(0))
+    same_faces = "equal" if len(mesh.faces) == len(dense.faces) else f"{len(mesh.faces) - len(dense.faces):+d}"
+    return (f"area {100 * (mesh.area / dense.area - 1):+.3f}%, vertex Hausdorff "
+            f"{vertex_hausdorff(dense, mesh):.1e}, F@5% {f.fscore:.4f}, Chamfer {f.chamfer:.2e}, "
+            f"faces {same_faces}")
+
+
+METHODS = {
+    "coarse-to-fine": lambda fn, r: extract_coarse_to_fine(fn, resolution=r, coarse_resolution=32),
+    "narrow band": lambda fn, r: extract_narrow_band(fn, resolution=r),
+}
+
+
 def compare(name: str, fn, resolution: int, skip_dense: bool) -> list[str]:
     rows = []
     dense = None
@@ -67,21 +87,32 @@ def compare(name: str, fn, resolution: int, skip_dense: bool) -> list[str]:
         start = time.perf_counter()
         dense = extract_dense(fn, resolution=resolution)
         seconds = time.perf_counter() - start
-        rows.append(f"| {name} | {resolution}³ | dense | {seconds:.1f} | {dense.evaluations:,} | 100% "
+        rows.append(f"| {name} | {resolution}³ | dense | {seconds:.2f} | {dense.evaluations:,} | 100% "
                     f"| {len(dense.mesh.faces):,} | — |")
-    start = time.perf_counter()
-    fine = extract_coarse_to_fine(fn, resolution=resolution, coarse_resolution=32)
-    seconds = time.perf_counter() - start
-    share = f"{100 * fine.evaluations / resolution**3:.1f}%"
-    if dense is not None:
-        same_faces = "equal" if len(fine.mesh.faces) == len(dense.mesh.faces) else "differ"
-        agreement = (f"area {100 * (fine.mesh.area / dense.mesh.area - 1):+.3f}%, vertex "
-                     f"Hausdorff {vertex_hausdorff(dense.mesh, fine.mesh):.1e}, faces {same_faces}")
-    else:
-        agreement = "(dense skipped)"
-    rows.append(f"| {name} | {resolution}³ | coarse-to-fine | {seconds:.1f} | {fine.evaluations:,} "
-                f"| {share} | {len(fine.mesh.faces):,} | {agreement} |")
+    for method, extract in METHODS.items():
+        start = time.perf_counter()
+        fine = extract(fn, resolution)
+        seconds = time.perf_counter() - start
+        share = f"{100 * fine.evaluations / resolution**3:.1f}%"
+        match = agreement(fine.mesh, dense.mesh) if dense is not None else "(dense skipped)"
+        rows.append(f"| {name} | {resolution}³ | {method} | {seconds:.2f} | {fine.evaluations:,} "
+                    f"| {share} | {len(fine.mesh.faces):,} | {match} |")
     return rows
+
+
+def shipped_shapes(spec: str) -> list[tuple[str, object]]:
+    """'chair:20,21;table:0' -> [(label, sdf function of that training code of the shipped model)]."""
+    from jsrte.model.decode import sdf_function
+    from jsrte.model.registry import resolve_model
+
+    shapes = []
+    for part in filter(None, spec.split(";")):
+        name, codes = part.split(":")
+        model = resolve_model(name)
+        model.decoder.eval()
+        for i in (int(c) for c in codes.split(",")):
+            shapes.append((f"{name} code {i}", sdf_function(model.decoder, model.codes[i].detach())))
+    return shapes
 
 
 def main() -> None:
@@ -90,19 +121,21 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--skip-dense-mlp-above", type=int, default=10**9,
                         help="skip the dense MLP grid above this resolution (it takes minutes)")
+    parser.add_argument("--shipped", default="",
+                        help="also shapes of shipped models: 'chair:20,21;table:0' (training codes)")
+    parser.add_argument("--no-synthetic", action="store_true", help="only the --shipped shapes")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    mlp = LatentMlp().eval()
-    print(f"torch threads: {torch.get_num_threads()}; MLP parameters: "
-          f"{sum(p.numel() for p in mlp.parameters()):,}\n")
+    shapes = [] if args.no_synthetic else [("analytic chair", chair_sdf), ("MLP 6×256, z 64", LatentMlp().eval())]
+    shapes += shipped_shapes(args.shipped)
+    print(f"torch threads: {torch.get_num_threads()}\n")
     print("| SDF | grid | method | seconds | evaluations | of dense | faces | agreement with dense |")
     print("|---|---|---|---|---|---|---|---|")
     for resolution in args.resolutions:
-        for row in compare("analytic chair", chair_sdf, resolution, skip_dense=False):
-            print(row, flush=True)
-        for row in compare("MLP 6×256, z 64", mlp, resolution,
-                           skip_dense=resolution > args.skip_dense_mlp_above):
-            print(row, flush=True)
+        for name, fn in shapes:
+            skip = name.startswith("MLP") and resolution > args.skip_dense_mlp_above
+            for row in compare(name, fn, resolution, skip_dense=skip):
+                print(row, flush=True)
 
 
 if __name__ == "__main__":

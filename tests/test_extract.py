@@ -12,8 +12,10 @@ import trimesh
 from jsrte.extract.marching import (
     _axis_samples,
     _containing_cells,
+    _interpolate_subgrid,
     extract_coarse_to_fine,
     extract_dense,
+    extract_narrow_band,
 )
 
 RADIUS = 0.5
@@ -105,6 +107,74 @@ def test_coarse_to_fine_box_matches_dense(resolution, coarse):
     assert fine.mesh.area == pytest.approx(dense.area, rel=0.005)
     assert fine.mesh.volume == pytest.approx(dense.volume, rel=0.005)
     assert len(fine.mesh.faces) == len(dense.faces)
+
+
+def _hausdorff(a: trimesh.Trimesh, b: trimesh.Trimesh) -> float:
+    """Largest distance from a vertex of one mesh to the nearest vertex of the other."""
+    from scipy.spatial import cKDTree
+
+    return max(cKDTree(b.vertices).query(a.vertices)[0].max(), cKDTree(a.vertices).query(b.vertices)[0].max())
+
+
+def test_narrow_band_sphere_matches_dense_with_few_evaluations(sphere_dense):
+    counter = Counter(sphere_sdf)
+    result = extract_narrow_band(counter, resolution=128, coarse_resolution=16)
+    assert result.evaluations == counter.count
+    flat = torch.cat(counter.points)
+    assert len(torch.unique(flat, dim=0)) == len(flat)  # every grid sample at most once
+    # a band about one spacing wide: a few percent of the grid, far below the coarse-to-fine band
+    assert result.evaluations < 0.05 * 128**3
+    assert result.evaluations < 0.5 * extract_coarse_to_fine(sphere_sdf, resolution=128).evaluations
+    mesh = result.mesh
+    assert mesh.area == pytest.approx(sphere_dense.area, rel=0.01)
+    assert mesh.volume == pytest.approx(sphere_dense.volume, rel=0.01)
+    assert _hausdorff(mesh, sphere_dense) < 0.01 * (2.0 / 127)
+    assert mesh.is_watertight
+
+
+@pytest.mark.parametrize("resolution, coarse", [(64, 16), (96, 8), (50, 7), (128, 16)])
+def test_narrow_band_box_matches_dense(resolution, coarse):
+    """Edges and corners: the interpolated estimates are poorest there."""
+    dense = extract_dense(box_sdf, resolution=resolution).mesh
+    counter = Counter(box_sdf)
+    thin = extract_narrow_band(counter, resolution=resolution, coarse_resolution=coarse)
+    assert thin.evaluations == counter.count < 0.25 * resolution**3
+    assert thin.mesh.area == pytest.approx(dense.area, rel=0.01)
+    assert _hausdorff(thin.mesh, dense) < 0.01 * (2.0 / (resolution - 1))
+
+
+def test_narrow_band_keeps_a_thin_rod():
+    """A rod a fifth of a coarse cell thick, between the coarse samples, is still found."""
+
+    def rod(points):
+        q = points.clone()
+        q[:, 1] = 0
+        return (q - torch.tensor([0.03, 0.0, -0.02])).norm(dim=1) - 0.025
+
+    dense = extract_dense(rod, resolution=64).mesh
+    thin = extract_narrow_band(rod, resolution=64, coarse_resolution=8).mesh
+    assert thin.area == pytest.approx(dense.area, rel=0.01)
+    assert _hausdorff(thin, dense) < 0.01 * (2.0 / 63)
+
+
+def test_narrow_band_no_surface_and_bad_arguments():
+    assert extract_narrow_band(lambda p: torch.ones(len(p)), resolution=33, coarse_resolution=9).mesh is None
+    with pytest.raises(ValueError, match="band"):
+        extract_narrow_band(sphere_sdf, resolution=16, band=0.0)
+    with pytest.raises(ValueError, match="coarse_resolution"):
+        extract_narrow_band(sphere_sdf, resolution=16, coarse_resolution=1)
+
+
+def test_interpolate_subgrid_is_exact_for_trilinear_functions():
+    coarse = _axis_samples(11, 4)  # 0 4 8 10: the last cell is shorter
+    fine = _axis_samples(11, 2)
+    x = coarse[:, None, None].astype(np.float32)
+    y = coarse[None, :, None].astype(np.float32)
+    z = coarse[None, None, :].astype(np.float32)
+    values = 1 + 2 * x - y + 0.5 * z + 0.1 * x * y * z
+    fx, fy, fz = (fine.astype(np.float32).reshape(s) for s in ((-1, 1, 1), (1, -1, 1), (1, 1, -1)))
+    np.testing.assert_allclose(_interpolate_subgrid(values, coarse, fine),
+                               1 + 2 * fx - fy + 0.5 * fz + 0.1 * fx * fy * fz, rtol=1e-5)
 
 
 def test_dense_box_area_volume():

@@ -85,7 +85,7 @@ class Neighbourhoods:
 
 def radius_neighbours(tree: cKDTree, centres: np.ndarray, radius: float) -> Neighbourhoods:
     """The points of ``tree`` within ``radius`` of each of ``centres`` (k, 3), self included."""
-    lists = tree.query_ball_point(np.asarray(centres, dtype=np.float64), r=radius, return_sorted=False)
+    lists = tree.query_ball_point(np.asarray(centres, dtype=np.float64), r=radius, return_sorted=False, workers=-1)
     counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
     indptr = np.concatenate([[0], np.cumsum(counts)])
     index = np.fromiter((j for x in lists for j in x), dtype=np.int64, count=int(indptr[-1]))

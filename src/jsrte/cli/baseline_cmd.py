@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from jsrte.baselines import BASELINE_NAMES
@@ -33,6 +32,8 @@ def baseline_command(
     progress: bool = typer.Option(True, help="Show progress (PointNet training, the first time)."),
 ) -> None:
     """Retrieve a training shape of the model and its similarity transform with a baseline."""
+    import numpy as np
+
     from jsrte.baselines.api import load_baseline_query, run_baseline
     from jsrte.baselines.database import ShapeDatabase
     from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs

@@ -2,18 +2,25 @@
 
 from __future__ import annotations
 
-import torch
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # torch is imported by the commands that run, never for --help
+    import torch
 
 
 def set_threads(threads: int | None) -> None:
     """Use ``threads`` CPU threads for PyTorch (None: all cores)."""
     import os
 
+    import torch
+
     torch.set_num_threads(threads or os.cpu_count() or 1)
 
 
 def resolve_device(name: str) -> torch.device:
     """The torch device called ``name`` ("cpu", "cuda", "cuda:1", ...); JsrteError if this machine lacks it."""
+    import torch
+
     from jsrte.errors import JsrteError
 
     try:

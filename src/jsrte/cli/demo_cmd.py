@@ -5,7 +5,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from jsrte.cli import app
@@ -22,6 +21,8 @@ def demo(
     overwrite: bool = typer.Option(True, help="Replace an earlier demo's files in --out."),
 ) -> None:
     """Scan a held-out generated chair in a random pose, fit it, and score the result."""
+    import numpy as np
+
     from jsrte.experiments.truth import score_against_truth, truth_of
     from jsrte.fit import fit
     from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
 import typer
 
 from jsrte.cli import app
@@ -13,9 +13,14 @@ from jsrte.cli.common import resolve_device, set_threads
 from jsrte.errors import JsrteError
 from jsrte.presets import DEFAULT_PRESET, PRESETS
 
+if TYPE_CHECKING:  # numpy is imported by the functions that run, never for --help
+    import numpy as np
+
 
 def parse_vector(text: str | None, name: str = "--up") -> np.ndarray | None:
     """'X,Y,Z' -> unit (3,) vector; None stays None."""
+    import numpy as np
+
     if text is None:
         return None
     v = _three_numbers(text, name)
@@ -26,11 +31,15 @@ def parse_vector(text: str | None, name: str = "--up") -> np.ndarray | None:
 
 def parse_points(texts: list[str] | None, name: str = "--viewpoint") -> np.ndarray | None:
     """['X,Y,Z', ...] -> (k, 3) positions (scan units); None or empty stays None."""
+    import numpy as np
+
     return np.stack([_three_numbers(text, name) for text in texts]) if texts else None
 
 
 def _three_numbers(text: str, name: str) -> np.ndarray:
     """'X,Y,Z' -> (3,) finite floats, or a one-line error naming the option."""
+    import numpy as np
+
     try:
         v = np.array([float(x) for x in text.split(",")])
     except ValueError:
@@ -96,6 +105,8 @@ def fit_command(
 
 def _surface_points(scan: Path, result) -> np.ndarray:  # noqa: ANN001
     """The query's points for the overlay figure."""
+    import numpy as np
+
     from jsrte.fit.query import is_query_file, read_query_file
     from jsrte.scans.io import load_scan
 
@@ -124,6 +135,8 @@ def prepare_command(
 ) -> None:
     """Preprocess a scan once into the fit's SDF query (floor, outliers, normals, samples): fit it
     later or on another machine (a GPU box without Open3D) with `jsrte fit QUERY.npz`."""
+    import numpy as np
+
     from jsrte.fit.query import load_query, save_query
     from jsrte.presets import get_preset, with_line_of_sight
 
@@ -141,6 +154,8 @@ def prepare_command(
 
 
 def _report(result, out: Path) -> None:  # noqa: ANN001
+    import numpy as np
+
     t = result.transform
     typer.echo(f"scale {t.s:.4f}  yaw θ {np.degrees(result.angles['theta']) % 360:.1f}°  "
                f"translation {np.round(t.t, 3).tolist()}")

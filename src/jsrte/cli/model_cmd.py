@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from jsrte.cli import app
@@ -22,6 +21,8 @@ def reconstruct(
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
 ) -> None:
     """DeepSDF latent-only reconstruction; the mesh is written in the input's own frame."""
+    import numpy as np
+
     from jsrte.geometry.mesh import load_mesh, save_mesh
     from jsrte.io import output_dir, write_json_atomic
     from jsrte.metrics.surface import fscore

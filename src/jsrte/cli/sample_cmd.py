@@ -4,15 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from jsrte.cli import app
 from jsrte.errors import JsrteError
-from jsrte.geometry.mesh import load_mesh
 from jsrte.presets import SdfSampling
-from jsrte.sdf.dataset import build_sdf_dataset
-from jsrte.sdf.mesh_sdf import sample_sdf
 
 
 @app.command("sample")
@@ -24,6 +20,11 @@ def sample(
     overwrite: bool = typer.Option(False, help="Replace an existing output file."),
 ) -> None:
     """SDF samples of one mesh in the normalized canonical frame (negative inside)."""
+    import numpy as np
+
+    from jsrte.geometry.mesh import load_mesh
+    from jsrte.sdf.mesh_sdf import sample_sdf
+
     if out.exists() and not overwrite:
         raise JsrteError("already exists; pass --overwrite to replace it", out)
     if n < 1:
@@ -44,6 +45,7 @@ def dataset(
 ) -> None:
     """Sample every mesh of a folder in parallel; meshes already sampled are skipped."""
     from jsrte.geometry.mesh import MESH_SUFFIXES
+    from jsrte.sdf.dataset import build_sdf_dataset
 
     if not folder.is_dir():
         raise JsrteError("no such folder", folder)

@@ -6,7 +6,6 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from jsrte.cli import app
@@ -25,6 +24,8 @@ def score(
     seed: int = typer.Option(0, help="Seed of the surface sampling."),
 ) -> None:
     """Print {fscore, precision, recall, threshold, chamfer} as one JSON line."""
+    import numpy as np
+
     from jsrte.geometry.mesh import load_mesh
     from jsrte.metrics.surface import fscore
 

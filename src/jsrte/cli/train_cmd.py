@@ -9,8 +9,7 @@ import typer
 from jsrte.cli import app
 from jsrte.cli.common import set_threads
 from jsrte.errors import JsrteError
-from jsrte.model.decoder import ARCHITECTURES
-from jsrte.model.train import MODEL_NAME, STATE_NAME, Trainer, TrainSettings
+from jsrte.model.config import ARCHITECTURES, MODEL_NAME, STATE_NAME, TrainSettings
 from jsrte.presets import SdfSampling
 
 _DEFAULT = TrainSettings()
@@ -43,6 +42,7 @@ def train(
     batch of shapes is split across the N processes (docs/scale.md).
     """
     from jsrte.model.distributed import init_from_env, main_process_first, shutdown
+    from jsrte.model.train import Trainer
 
     if arch not in ARCHITECTURES:
         raise JsrteError(f"unknown architecture {arch!r}; known: {', '.join(ARCHITECTURES)}")

@@ -44,17 +44,19 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     from jsrte.model.decoder import decoder_device
     from jsrte.model.registry import resolve_model
     from jsrte.presets import get_preset, with_line_of_sight
+    from jsrte.timing import stage
 
     settings = get_preset(preset)
     settings = replace(settings, scan_sdf=with_line_of_sight(settings.scan_sdf, line_of_sight))
     if free_axis:
         settings = replace(settings, fit=replace(settings.fit, hold_axis=False))
-    loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)
-    if device is not None:
-        loaded.to(device)
-    rng = np.random.default_rng(seed)
-    sdf_query = query if isinstance(query, SdfQuery) else load_query(
-        query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf)
+    with stage("load"):
+        loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)
+        if device is not None:
+            loaded.to(device)
+        rng = np.random.default_rng(seed)
+        sdf_query = query if isinstance(query, SdfQuery) else load_query(
+            query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf)
     result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=hypotheses, seed=seed, progress=progress)
     result.info.update(preset=settings.name, model=loaded.name, model_sha256=loaded.meta.get("sha256"),
                        query=sdf_query.info, device=str(decoder_device(loaded.decoder)),

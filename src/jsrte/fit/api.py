@@ -16,6 +16,7 @@ from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decode import decode_mesh
 from jsrte.presets import FitSettings
+from jsrte.timing import stage, timed_stage
 
 AXIS_PARAMETERS = frozenset({"psi", "rho"})
 """The rotation axis's spherical angles: held in the known-axis mode."""
@@ -66,14 +67,16 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     if settings.below_floor_samples and clamp is not None:
         query = with_below_floor_samples(query, settings.below_floor_samples, clamp=clamp,
                                          rng=np.random.default_rng(seed), depth=settings.below_floor_depth)
-    result = optimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
-                      prior=latent_prior(model, settings), progress=progress)
+    with stage("solve"):
+        result = optimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
+                          prior=latent_prior(model, settings), progress=progress)
     t_opt = time.perf_counter() - started
     reports = _reports(result, inits)
     winner, criterion = _select(model, query, result, reports, settings, seed)
     t_sel = time.perf_counter() - started - t_opt
     latent = result.batch.latent[winner].detach().to("cpu", torch.float32).numpy()
-    mesh = decode_mesh(decoder, latent, resolution=settings.extract_resolution).mesh
+    with stage("meshing"):
+        mesh = decode_mesh(decoder, latent, resolution=settings.extract_resolution).mesh
     timing = {"optimize": round(t_opt, 2), "select": round(t_sel, 2),
               "extract": round(time.perf_counter() - started - t_opt - t_sel, 2),
               "total": round(time.perf_counter() - started, 2)}
@@ -102,6 +105,7 @@ def _reports(result: Optimized, inits: list[Init]) -> list[HypothesisReport]:
     return reports
 
 
+@timed_stage("selection")
 def _select(model: DeepSdfModel, query: SdfQuery, result: Optimized, reports: list[HypothesisReport],
             settings: FitSettings, seed: int) -> tuple[int, dict]:
     """Index (into the surviving batch) of the winner, and the criterion used."""

@@ -9,10 +9,12 @@ import numpy as np
 from jsrte.fit.result import FitResult
 from jsrte.geometry.mesh import save_mesh
 from jsrte.io import write_json_atomic
+from jsrte.timing import timed_stage
 
 RESULT_NAME = "fit.json"
 
 
+@timed_stage("outputs")
 def write_fit_outputs(result: FitResult, out_dir: Path, *, query_points: np.ndarray,
                       up: np.ndarray | None, extra: dict | None = None) -> list[Path]:
     """Write the result files into ``out_dir`` (each atomically; fit.json last)."""

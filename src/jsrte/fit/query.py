@@ -13,6 +13,7 @@ from jsrte.fit.optimize import SdfQuery
 from jsrte.geometry.mesh import load_mesh
 from jsrte.presets import ScanSdf, SdfSampling
 from jsrte.sdf.mesh_sdf import SdfSamples, sample_sdf
+from jsrte.timing import stage
 
 SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".pts")
 MESH_QUERY_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
@@ -51,17 +52,20 @@ def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarra
     from jsrte.scans.preprocess import prepare_scan
     from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples
 
-    cloud = load_scan(path, rng=rng)
-    info = read_scan_info(path) if Path(path).suffix.lower() == ".ply" else None
+    with stage("load"):
+        cloud = load_scan(path, rng=rng)
+        info = read_scan_info(path) if Path(path).suffix.lower() == ".ply" else None
     if viewpoints is None and info is not None and len(info.cameras):
         viewpoints = info.cameras
     prepared = prepare_scan(cloud, rng=rng, up=up, viewpoints=viewpoints)
-    points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
-    n_rays = 0
-    if viewpoints is not None:
-        ray_points, ray_sdf = ray_freespace_samples(prepared.points, cloud.points, viewpoints,
-                                                    rng=rng, settings=settings)
-        points, sdf, n_rays = np.concatenate([points, ray_points]), np.concatenate([sdf, ray_sdf]), len(ray_sdf)
+    with stage("query samples"):
+        points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
+        n_rays = 0
+        if viewpoints is not None:
+            ray_points, ray_sdf = ray_freespace_samples(prepared.points, cloud.points, viewpoints,
+                                                        rng=rng, settings=settings)
+            points, sdf, n_rays = (np.concatenate([points, ray_points]), np.concatenate([sdf, ray_sdf]),
+                                   len(ray_sdf))
     floor_offset = prepared.floor.offset if prepared.floor is not None else None
     return SdfQuery(points.astype(np.float64), sdf.astype(np.float64), prepared.points, up=prepared.up,
                     floor_offset=floor_offset,

@@ -6,7 +6,7 @@ import numpy as np
 import torch
 import trimesh
 
-from jsrte.extract.marching import Extraction, extract_coarse_to_fine, extract_dense
+from jsrte.extract.marching import Extraction, extract_dense, extract_narrow_band
 from jsrte.model.decoder import Decoder, decoder_device
 
 
@@ -27,13 +27,17 @@ def sdf_function(decoder: Decoder, latent: torch.Tensor | np.ndarray):  # noqa: 
 
 def decode_mesh(decoder: Decoder, latent: torch.Tensor | np.ndarray, *, resolution: int = 128,
                 coarse_to_fine: bool = True) -> Extraction:
-    """Marching cubes of f(·, z) = 0 over [-1, 1]^3; mesh in canonical units (or None)."""
+    """Marching cubes of f(·, z) = 0 over [-1, 1]^3; mesh in canonical units (or None).
+
+    ``coarse_to_fine`` evaluates the decoder only in a narrow band around the surface
+    (:func:`extract_narrow_band`); otherwise on every grid sample.
+    """
     was_training = decoder.training
     decoder.eval()
     try:
         fn = sdf_function(decoder, latent)
         if coarse_to_fine:
-            return extract_coarse_to_fine(fn, resolution=resolution, coarse_resolution=min(32, resolution))
+            return extract_narrow_band(fn, resolution=resolution, coarse_resolution=min(16, resolution))
         return extract_dense(fn, resolution=resolution)
     finally:
         decoder.train(was_training)

@@ -8,55 +8,15 @@ Optional Fourier features of x (``pe_frequencies``) help thin parts at a small c
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
 from torch.nn.utils.parametrizations import weight_norm
 
+from jsrte.model.config import ARCHITECTURES, DecoderConfig
+from jsrte.timing import count_evaluations
 
-@dataclass(frozen=True)
-class DecoderConfig:
-    """Decoder architecture (stored in every checkpoint).
-
-    Attributes
-    ----------
-    latent_size : dimension d of the latent code z
-    hidden : width of every hidden layer
-    depth : number of hidden layers
-    skip_layer : index of the hidden layer whose input is concatenated with [z, x] again
-    dropout : dropout probability in training (0 disables)
-    weight_norm : weight-normalize the linear layers
-    pe_frequencies : number of Fourier-feature octaves of x (0: raw xyz only)
-    """
-
-    latent_size: int = 64
-    hidden: int = 256
-    depth: int = 6
-    skip_layer: int = 3
-    dropout: float = 0.0
-    weight_norm: bool = True
-    pe_frequencies: int = 0
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @staticmethod
-    def from_dict(d: dict) -> DecoderConfig:
-        known = set(DecoderConfig.__dataclass_fields__)
-        unknown = set(d) - known
-        if unknown:
-            raise ValueError(f"unknown decoder config keys: {sorted(unknown)}")
-        return DecoderConfig(**d)
-
-
-ARCHITECTURES: dict[str, DecoderConfig] = {
-    # The paper's network (DeepSDF): 8 x 512, latent 256, skip at layer 4, dropout 0.2.
-    "deepsdf": DecoderConfig(latent_size=256, hidden=512, depth=8, skip_layer=4, dropout=0.2),
-    # CPU default, chosen by measurement on the 2-core machine (docs/models.md).
-    "cpu": DecoderConfig(latent_size=64, hidden=256, depth=6, skip_layer=3, dropout=0.0,
-                         pe_frequencies=0),
-}
+__all__ = ["ARCHITECTURES", "Decoder", "DecoderConfig", "count_parameters", "decoder_device"]
 
 
 class Decoder(nn.Module):
@@ -105,6 +65,7 @@ class Decoder(nn.Module):
 
     def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
         """SDF (n,) at ``points`` (n, 3) for per-point latent ``codes`` (n, d) or one code (d,)."""
+        count_evaluations(points.shape[:-1].numel())
         if codes.dim() == 1:
             codes = codes.expand(points.shape[0], -1)
         inputs = torch.cat([codes, self.encode_points(points)], dim=-1)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -23,39 +22,9 @@ from tqdm import tqdm
 from jsrte.errors import JsrteError
 from jsrte.io import write_with
 from jsrte.model.checkpoint import DeepSdfModel, read_metadata, save_model, tensors_of
+from jsrte.model.config import LOG_NAME, MODEL_NAME, STATE_NAME, TrainSettings
 from jsrte.model.decoder import Decoder, DecoderConfig
 from jsrte.model.distributed import DROPOUT_RANK_STRIDE, DistContext, average_gradient, sum_over_ranks
-
-STATE_NAME = "train_state.safetensors"
-MODEL_NAME = "model.safetensors"
-LOG_NAME = "train_log.csv"
-
-
-@dataclass(frozen=True)
-class TrainSettings:
-    """Auto-decoder training settings (stored in the checkpoint).
-
-    ``clamp`` and ``code_reg`` are DeepSDF's (0.1 and 1e-4). Learning rates follow a cosine
-    from their base value to ``final_lr_fraction`` of it over ``steps``.
-    """
-
-    steps: int = 4000
-    shapes_per_batch: int = 16
-    points_per_shape: int = 1024
-    lr_net: float = 1e-3
-    lr_codes: float = 5e-3
-    final_lr_fraction: float = 0.05
-    clamp: float = 0.1
-    code_reg: float = 1e-4
-    code_init_std: float = 0.01
-    checkpoint_every: int = 200
-    seed: int = 0
-
-    def lr_factor(self, step: int) -> float:
-        """Cosine learning-rate factor at ``step`` (1 at step 0, ``final_lr_fraction`` at the end)."""
-        progress = min(step / max(self.steps, 1), 1.0)
-        f = self.final_lr_fraction
-        return f + (1.0 - f) * 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
 @dataclass

@@ -14,6 +14,7 @@ import numpy as np
 
 from jsrte.errors import JsrteError
 from jsrte.scans.io import ScanCloud
+from jsrte.timing import timed_stage
 
 UP_HINT = "pass the up axis explicitly with --up X,Y,Z"
 
@@ -276,6 +277,7 @@ def hidden_point_removal(
     return _mask(len(points), visible)
 
 
+@timed_stage("normals")
 def estimate_normals(
     points: np.ndarray, *, viewpoints: np.ndarray | None = None, up: np.ndarray | None = None,
     settings: PrepareSettings = PrepareSettings(),
@@ -300,6 +302,7 @@ def estimate_normals(
                                      settings=settings)
 
 
+@timed_stage("normals")
 def orient_towards_viewpoints(
     points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray, *,
     settings: PrepareSettings = PrepareSettings(),
@@ -429,6 +432,7 @@ def check_units(
 # --- the pipeline ----------------------------------------------------------------------------
 
 
+@timed_stage("floor and cleaning")
 def prepare_scan(
     cloud: ScanCloud, *, rng: np.random.Generator, up: np.ndarray | None = None,
     viewpoints: np.ndarray | None = None,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from math import pi
+from typing import Literal
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,24 @@ class FitSettings:
     fscore_points: int = 3000
     fscore_fraction: float = 0.05
     extract_resolution: int = 128
+    solver: Literal["adam", "gauss-newton"] = "adam"
+    """How the objective is minimized: "adam" (the paper: ``iterations`` Adam steps on
+    ``samples_per_iteration`` fresh samples each) or "gauss-newton" (beyond the paper,
+    fit.gauss_newton: Levenberg–Marquardt with IRLS weights on ``samples_per_iteration``
+    samples drawn once; ``iterations`` bounds its iterations, and the prunings count them)."""
+    huber_canonical: float = 0.005
+    """Gauss–Newton: residuals under this (canonical units times s0) are weighted as a quadratic
+    (Huber); above it, as the L1 loss (IRLS weight 1 / 2|r|)."""
+    damping: float = 1e-2
+    """Gauss–Newton: the initial Levenberg–Marquardt damping μ (times the system's diagonal)."""
+    tolerance: float = 1e-3
+    """Gauss–Newton: a hypothesis stops once an accepted step lowers its objective by less than
+    this fraction."""
+    yaw_screen_keep: int | None = None
+    """Gauss–Newton: screen the yaw starts (the θ grid) by forward passes only, at their
+    initial pose and code, and solve only the best this many; None: solve them all."""
+    yaw_screen_samples: int = 400
+    """Samples on which the yaw starts are screened (the same for every start)."""
 
     def without_pruning(self) -> FitSettings:
         """The same settings with every hypothesis run to the end (both prunings off)."""

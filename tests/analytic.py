@@ -65,6 +65,8 @@ class SphereDecoder(nn.Module):
         self.config = DecoderConfig(latent_size=2, hidden=8, depth=2, skip_layer=1)
 
     def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        if codes.dim() == 1:
+            codes = codes.expand(points.shape[0], -1)
         return points.norm(dim=-1) - (self.r0 + codes[:, 0] + codes[:, 1])
 
 

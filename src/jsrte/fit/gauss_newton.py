@@ -217,6 +217,32 @@ def damped_step(lin: Linearization, damping: torch.Tensor) -> tuple[torch.Tensor
     return torch.where(ok[:, None], step, torch.zeros_like(step)), ok
 
 
+class ProblemDrawer:
+    """Draws the fixed sample sets (:class:`Problem`) of a query's objective, the terms set as the
+    Adam fit sets them (fit.optimize): clamp and scale prior from the median initial scale s0,
+    the latent penalty times s0 for a whitened code."""
+
+    def __init__(self, query: SdfQuery, inits: list[Init], settings: FitSettings, *, generator: torch.Generator,
+                 whitened: bool, device: torch.device) -> None:
+        self.clamp = loss_clamp(settings, inits)
+        self.s0 = float(np.median([i.scale for i in inits]))
+        self.penalty = latent_penalty(settings, n_surface=len(query.surface)) * (self.s0 if whitened else 1.0)
+        self.points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
+        self.sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
+        self.lower = None if query.lower_bound is None else torch.as_tensor(query.lower_bound, device=device)
+        self.sampler = SampleDrawer(query.sdf, near_share=settings.near_sample_share, clamp=self.clamp,
+                                    generator=generator)
+        self.settings = settings
+        self.device = device
+
+    def __call__(self, n: int) -> Problem:
+        """``n`` samples drawn from all of the query's (with the near share, if any)."""
+        idx = self.sampler.draw(len(self.sdf), n).to(self.device)
+        return Problem(self.points[idx], self.sdf[idx], None if self.lower is None else self.lower[idx],
+                       self.clamp, self.settings.huber_canonical * self.s0, self.penalty,
+                       (self.settings.scale_prior, self.s0))
+
+
 def screen_yaws(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, problem: Problem,
                 prior: tuple[torch.Tensor, torch.Tensor] | None, keep: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Forward passes only: the objective (H,) of every start on ``problem``'s samples, and the
@@ -229,7 +255,8 @@ def screen_yaws(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, problem: 
 
 def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
           fixed: frozenset[str] = frozenset(), generator: torch.Generator,
-          prior: LatentPrior | None = None, progress: bool = False) -> Optimized:
+          prior: LatentPrior | None = None, progress: bool = False,
+          trace: list[dict[int, float]] | None = None) -> Optimized:
     """Minimize every hypothesis's objective by Levenberg–Marquardt, as one batch.
 
     ``settings.iterations`` bounds the iterations (each one decoder pass with its backward over
@@ -238,7 +265,8 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     count these iterations. With ``yaw_screen_keep`` set, the starts are first screened by
     forward passes on ``yaw_screen_samples`` samples and only the best that many solved.
     A hypothesis whose objective or system turns NaN/inf is dropped (``Optimized.failed``);
-    if all are, a JsrteError.
+    if all are, a JsrteError. ``trace``, if given, receives each iteration's objective of every
+    hypothesis still in the batch (by initial index), for studying pruning schedules.
     """
     start = time.perf_counter()
     decoder.eval()
@@ -247,18 +275,10 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     batch = HypothesisBatch(inits, decoder.config.latent_size, latent_init_std=settings.latent_init_std,
                             fixed=fixed, generator=generator, prior=prior).to(device)
     whitening = None if prior is None else (batch.prior_mean, batch.prior_factor)
-    clamp = loss_clamp(settings, inits)
-    s0 = float(np.median([i.scale for i in inits]))
-    penalty = latent_penalty(settings, n_surface=len(query.surface)) * (s0 if prior is not None else 1.0)
-    points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
-    sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
-    lower = None if query.lower_bound is None else torch.as_tensor(query.lower_bound, device=device)
-    sampler = SampleDrawer(query.sdf, near_share=settings.near_sample_share, clamp=clamp, generator=generator)
-
-    def problem_of(n: int) -> Problem:
-        idx = sampler.draw(len(query.sdf), n).to(device)
-        return Problem(points[idx], sdf[idx], None if lower is None else lower[idx], clamp,
-                       settings.huber_canonical * s0, penalty, (settings.scale_prior, s0))
+    problem_of = ProblemDrawer(query, inits, settings, generator=generator, whitened=prior is not None,
+                               device=device)
+    clamp, penalty, s0 = problem_of.clamp, problem_of.penalty, problem_of.s0
+    points, sdf, lower = problem_of.points, problem_of.sdf, problem_of.lower
 
     p = pack(batch)
     survivors = np.arange(len(inits))
@@ -293,6 +313,8 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
             lin = Linearization(lin.objective[keep], lin.hessian[keep], lin.gradient[keep])
             survivors = survivors[keep.cpu().numpy()]
             batch.keep(keep.cpu())
+        if trace is not None:
+            trace.append({int(i): float(v) for i, v in zip(survivors, lin.objective.tolist(), strict=True)})
         if not bool(moving.any()):
             break
         iterations = it + 1

@@ -247,3 +247,19 @@ def test_latent_only_reconstruction_by_gauss_newton_recovers_a_sphere():
     out, _ = reconstruct_mesh(model, mesh, rng=np.random.default_rng(0), resolution=32,
                               settings=LATENT_ONLY_GAUSS_NEWTON)
     np.testing.assert_allclose(out.bounds, mesh.bounds, atol=0.02)
+
+
+def test_the_fast_gn_preset_as_shipped_recovers_a_known_transform(widening, widened_mesh):
+    """``fast-gn``: whitened code, depth bounds under the floor, scale prior, 12 starts pruned
+    to 2 after 4 iterations."""
+    from jsrte.presets import get_preset
+
+    settings = replace(get_preset("fast-gn").fit, extract_resolution=32)
+    truth, up = tilted_truth(theta=-2.0)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(6))
+    result = fit_query(widening, query, settings, seed=0)
+    assert result.info["below_floor_samples"] == settings.below_floor_samples > 0
+    assert sum(not h.pruned for h in result.hypotheses) == 2 and len(result.hypotheses) == 12
+    assert result.transform.s == pytest.approx(truth.s, rel=0.03)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 3.0
+    assert np.linalg.norm(result.transform.t - truth.t) < 0.05

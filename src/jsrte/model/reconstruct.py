@@ -33,8 +33,11 @@ LATENT_ONLY = LATENT_ONLY_ADAM
 
 def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator,
                        settings: FitSettings = LATENT_ONLY,
-                       sampling: SdfSampling = SdfSampling(n_points=50_000)) -> tuple[np.ndarray, Normalization]:
-    """The latent code (d,) of ``mesh`` (canonical orientation), and its normalization."""
+                       sampling: SdfSampling = SdfSampling(n_points=50_000),
+                       report: dict | None = None) -> tuple[np.ndarray, Normalization]:
+    """The latent code (d,) of ``mesh`` (canonical orientation), and its normalization.
+
+    ``report``, if given, receives the solver's iterations, decoder evaluations and seconds."""
     norm = unit_sphere_normalization(mesh)
     samples = sample_sdf(mesh, rng=rng, settings=sampling, normalization=norm)
     query = SdfQuery(samples.points.astype(np.float64), samples.sdf.astype(np.float64),
@@ -44,6 +47,9 @@ def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.ra
     fixed = frozenset(PARAMETER_NAMES) - {"latent"}
     out = minimize(model.decoder, query, [init], settings, fixed=fixed, prior=None,
                    generator=torch.Generator().manual_seed(int(rng.integers(2**31))))
+    if report is not None:
+        report.update(solver=settings.solver, iterations=out.iterations, decoder_evaluations=out.evaluations,
+                      seconds=round(out.seconds, 2))
     return out.batch.latent[0].detach().to("cpu", torch.float32).numpy(), norm
 
 

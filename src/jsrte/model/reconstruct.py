@@ -28,7 +28,9 @@ LATENT_ONLY_GAUSS_NEWTON = replace(LATENT_ONLY_ADAM, solver="gauss-newton", iter
 """The same objective by Levenberg–Marquardt (fit.gauss_newton): at most 20 iterations on 8000
 fixed samples, stopping once a step gains under ``tolerance``."""
 
-LATENT_ONLY = LATENT_ONLY_ADAM
+LATENT_ONLY = LATENT_ONLY_GAUSS_NEWTON
+"""The recipe of ``jsrte reconstruct`` and ``jsrte evaluate-model``: Levenberg–Marquardt, at about a
+tenth of Adam's decoder evaluations with the same held-out F@5% (docs/solver.md)."""
 
 
 def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator,

@@ -76,6 +76,7 @@ def main() -> None:
         rows.append({"scan": name, "fscore": round(score["fscore"], 4),
                      "rotation_error_deg": round(score["rotation_error_deg"], 2),
                      "scale_error_rel": round(score["scale_error_rel"], 4), "seconds": round(seconds, 1),
+                     "optimize_s": result.timing["optimize"], "iterations": result.info["iterations"],
                      "decoder_evaluations": result.info["decoder_evaluations"],
                      "criterion": round(result.criterion["value"], 4)})
         print(rows[-1], flush=True)
@@ -84,7 +85,9 @@ def main() -> None:
             writer.writeheader()
             writer.writerows(rows)
     scores = [r["fscore"] for r in rows]
-    print(f"{len(rows)} scans: mean F@5% {statistics.mean(scores):.3f}, median {statistics.median(scores):.3f}; "
+    print(f"{len(rows)} scans: mean F@5% {statistics.mean(scores):.3f}, median {statistics.median(scores):.3f}, "
+          f"mean evaluations {statistics.mean(r['decoder_evaluations'] for r in rows):,.0f}, "
+          f"mean optimize {statistics.mean(r['optimize_s'] for r in rows):.1f} s; "
           f"settings changed: {args.changes or 'none'}")
 
 

@@ -29,12 +29,15 @@ def prepare(args: argparse.Namespace) -> None:
 
     from jsrte.experiments.scans import virtual_cases
     from jsrte.fit.query import load_query, save_query
+    from jsrte.presets import get_preset
 
     out = Path(args.out)
     cases = virtual_cases(args.category, args.scans, out / "scans", seed=args.seed, first=args.first_shape)
     truths = {}
     for case in cases:
-        query = load_query(case.path, rng=np.random.default_rng(args.seed))
+        query_seed = args.seed if args.query_seed is None else args.query_seed
+        query = load_query(case.path, rng=np.random.default_rng(query_seed),
+                           scan_settings=get_preset(args.scan_preset).scan_sdf)
         save_query(query, out / f"{case.name}.npz")
         truths[case.name] = case.truth
         print(f"{case.name}: {len(query.sdf)} samples")
@@ -120,6 +123,9 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0, help="Scan seed (poses, noise).")
     p.add_argument("--first-shape", type=int, default=0,
                    help="First held-out shape index (Table 2 uses 0..29; the tuning set 100..119).")
+    p.add_argument("--scan-preset", default="paper",
+                   help="Whose scan SDF settings make the queries (fast: with line-of-sight samples).")
+    p.add_argument("--query-seed", type=int, default=None, help="Seed of the query sampling (default: --seed).")
     p.add_argument("--out", required=True)
     r = sub.add_parser("run")
     r.add_argument("folder")

@@ -33,6 +33,29 @@ class LShapeDecoder(nn.Module):
         return torch.minimum(torch.minimum(seat, back), leg)
 
 
+class WideningLShapeDecoder(nn.Module):
+    """f(x, z): the L-shape of :class:`LShapeDecoder` whose seat and back are 0.35 (1 + z_0)
+    wide (half-width along x); its height does not change, so scale and code are not confounded."""
+
+    def __init__(self, latent_size: int = 3) -> None:
+        super().__init__()
+        self.config = DecoderConfig(latent_size=latent_size, hidden=8, depth=2, skip_layer=1)
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        if codes.dim() == 1:
+            codes = codes.expand(points.shape[0], -1)
+        half_x = 0.35 * (1.0 + codes[:, 0])
+
+        def box(centre: tuple[float, float, float], half_yz: tuple[float, float]) -> torch.Tensor:
+            q = (points - torch.tensor(centre, dtype=points.dtype)).abs()
+            q = q - torch.stack([half_x, *(torch.full_like(half_x, v) for v in half_yz)], dim=-1)
+            return q.clamp(min=0).norm(dim=-1) + q.max(dim=-1).values.clamp(max=0)
+
+        leg = box_sdf(points, (0.25, -0.55, -0.2), (0.05, 0.3, 0.05))
+        return torch.minimum(torch.minimum(box((0.0, -0.2, 0.0), (0.08, 0.3)), box((0.0, 0.25, 0.25), (0.4, 0.06))),
+                             leg)
+
+
 class SphereDecoder(nn.Module):
     """f(x, z) = |x| − (r0 + z_0 + z_1): a sphere whose radius two latent directions change alike."""
 
@@ -42,6 +65,8 @@ class SphereDecoder(nn.Module):
         self.config = DecoderConfig(latent_size=2, hidden=8, depth=2, skip_layer=1)
 
     def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        if codes.dim() == 1:
+            codes = codes.expand(points.shape[0], -1)
         return points.norm(dim=-1) - (self.r0 + codes[:, 0] + codes[:, 1])
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from math import pi
+from typing import Literal
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,24 @@ class FitSettings:
     fscore_points: int = 3000
     fscore_fraction: float = 0.05
     extract_resolution: int = 128
+    solver: Literal["adam", "gauss-newton"] = "adam"
+    """How the objective is minimized: "adam" (the paper: ``iterations`` Adam steps on
+    ``samples_per_iteration`` fresh samples each) or "gauss-newton" (beyond the paper,
+    fit.gauss_newton: Levenberg–Marquardt with IRLS weights on ``samples_per_iteration``
+    samples drawn once; ``iterations`` bounds its iterations, and the prunings count them)."""
+    huber_canonical: float = 0.005
+    """Gauss–Newton: residuals under this (canonical units times s0) are weighted as a quadratic
+    (Huber); above it, as the L1 loss (IRLS weight 1 / 2|r|)."""
+    damping: float = 1e-2
+    """Gauss–Newton: the initial Levenberg–Marquardt damping μ (times the system's diagonal)."""
+    tolerance: float = 1e-3
+    """Gauss–Newton: a hypothesis stops once an accepted step lowers its objective by less than
+    this fraction."""
+    yaw_screen_keep: int | None = None
+    """Gauss–Newton: screen the yaw starts (the θ grid) by forward passes only, at their
+    initial pose and code, and solve only the best this many; None: solve them all."""
+    yaw_screen_samples: int = 400
+    """Samples on which the yaw starts are screened (the same for every start)."""
 
     def without_pruning(self) -> FitSettings:
         """The same settings with every hypothesis run to the end (both prunings off)."""
@@ -177,6 +196,16 @@ its final loss rather than by F@5% against a partial scan; beyond the paper's sa
 space on the sensor's lines of sight (where the viewpoints are known, from the first iteration)
 and depth bounds under the floor from just below it (docs/presets.md)."""
 
+FAST_GAUSS_NEWTON = Preset(
+    name="fast-gn",
+    scan_sdf=FAST.scan_sdf,
+    fit=replace(FAST.fit, solver="gauss-newton", iterations=15, samples_per_iteration=2000,
+                prune_after=4, prune_keep=2, prune_again_after=None),
+)
+"""``fast``'s objective, starts and selection, minimized by Levenberg–Marquardt (fit.gauss_newton):
+the 12 yaw starts take 4 iterations, the best two go on to at most 15 (stopping once a step
+gains under 0.1%), on 2000 samples drawn once (docs/solver.md)."""
+
 SMOKE = Preset(
     name="smoke",
     fit=FitSettings(iterations=10, samples_per_iteration=500, selection="loss", extract_resolution=32,
@@ -187,6 +216,7 @@ SMOKE = Preset(
 PRESETS: dict[str, Preset] = {
     "paper": PAPER,
     "fast": FAST,
+    "fast-gn": FAST_GAUSS_NEWTON,
     "smoke": SMOKE,
 }
 DEFAULT_PRESET = "fast"

@@ -15,6 +15,7 @@ from jsrte.fit.result import FitResult, HypothesisReport
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decode import decode_mesh
+from jsrte.model.decoder import Decoder
 from jsrte.presets import FitSettings
 from jsrte.timing import stage, timed_stage
 
@@ -45,6 +46,22 @@ def latent_prior(model: DeepSdfModel, settings: FitSettings) -> LatentPrior | No
     return LatentPrior.of_codes(model.codes.detach().cpu().numpy(), shrinkage=settings.latent_prior_shrinkage)
 
 
+def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
+             fixed: frozenset[str], generator: torch.Generator, prior: LatentPrior | None,
+             progress: bool = False) -> Optimized:
+    """Minimize every hypothesis's objective with ``settings.solver``: Adam (fit.optimize) or
+    Levenberg–Marquardt (fit.gauss_newton)."""
+    if settings.solver == "gauss-newton":
+        from jsrte.fit.gauss_newton import solve
+
+        return solve(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
+                     progress=progress)
+    if settings.solver != "adam":
+        raise ValueError(f"unknown solver {settings.solver!r}; known: adam, gauss-newton")
+    return optimize(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
+                    progress=progress)
+
+
 def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
               inits: list[Init] | None = None, n_hypotheses: int | None = None,
               fixed: frozenset[str] | None = None, seed: int = 0, progress: bool = False) -> FitResult:
@@ -68,7 +85,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         query = with_below_floor_samples(query, settings.below_floor_samples, clamp=clamp,
                                          rng=np.random.default_rng(seed), depth=settings.below_floor_depth)
     with stage("solve"):
-        result = optimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
+        result = minimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
                           prior=latent_prior(model, settings), progress=progress)
     t_opt = time.perf_counter() - started
     reports = _reports(result, inits)
@@ -86,7 +103,8 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         hypotheses=reports, timing=timing,
         info={"decoder_evaluations": result.evaluations, "iterations": result.iterations,
               "fixed_parameters": sorted(fixed), "below_floor_samples": len(query.sdf) - n_query,
-              "latent_space": settings.latent_space,
+              "latent_space": settings.latent_space, "solver": settings.solver,
+              "failed_hypotheses": {str(i): why for i, why in sorted(result.failed.items())},
               "winner_hypothesis": int(result.survivors[winner])},
     )
 
@@ -96,6 +114,9 @@ def _reports(result: Optimized, inits: list[Init]) -> list[HypothesisReport]:
     for i, init in enumerate(inits):
         init_json = {"scale": init.scale, "psi": init.psi, "rho": init.rho, "theta": init.theta,
                      "translation": np.asarray(init.translation, float).tolist()}
+        if i in result.failed:
+            reports.append(HypothesisReport(i, init_json, float("nan"), pruned=True, failed=result.failed[i]))
+            continue
         if i in result.pruned_losses:
             reports.append(HypothesisReport(i, init_json, result.pruned_losses[i], pruned=True))
             continue

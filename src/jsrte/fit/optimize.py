@@ -58,6 +58,8 @@ class Optimized:
     iterations: int
     evaluations: int
     seconds: float
+    failed: dict[int, str] = field(default_factory=dict)
+    """Hypotheses (by initial index) dropped because their objective turned NaN or infinite, and why."""
 
 
 def learning_rate(settings: FitSettings, iteration: int) -> float:

@@ -22,9 +22,13 @@ class HypothesisReport:
     angles: dict[str, float] | None = None
     fscore: float | None = None
     pruned: bool = False
+    failed: str | None = None
+    """Why the hypothesis was dropped (its objective turned NaN or infinite), or None."""
 
     def to_json(self) -> dict[str, Any]:
-        return {"index": self.index, "init": self.init, "loss": self.loss, "pruned": self.pruned,
+        return {"index": self.index, "init": self.init,
+                "loss": self.loss if np.isfinite(self.loss) else None, "pruned": self.pruned,
+                **({"failed": self.failed} if self.failed else {}),
                 "fscore_vs_query": self.fscore, "angles": self.angles,
                 "transform": None if self.transform is None else self.transform.to_dict()}
 

@@ -1,0 +1,265 @@
+"""The Levenberg–Marquardt solver: its step is the finite-difference Gauss–Newton step; it
+recovers a known transform and code in both axis modes; yaw screening; divergence handling."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from analytic import LShapeDecoder, WideningLShapeDecoder
+from jsrte.errors import JsrteError
+from jsrte.fit.api import fit_query
+from jsrte.fit.gauss_newton import Linearization, Problem, damped_step, free_columns, linearize, pack, solve
+from jsrte.fit.init import ClassGeometry, initial_hypotheses
+from jsrte.fit.optimize import SdfQuery, hypothesis_losses
+from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
+from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
+from jsrte.model.checkpoint import DeepSdfModel
+from jsrte.model.decode import decode_mesh
+from jsrte.model.decoder import Decoder, DecoderConfig
+from jsrte.presets import FAST
+from jsrte.sdf.mesh_sdf import signed_distance
+
+SETTINGS = replace(FAST.fit, solver="gauss-newton", iterations=40, samples_per_iteration=2000, prune_after=3,
+                   prune_keep=2, prune_again_after=None, selection="loss", extract_resolution=48,
+                   below_floor_samples=0, latent_space="raw", latent_penalty=1e-6, latent_penalty_points=None,
+                   scale_prior=0.0)
+TRUE_CODE = np.array([0.3, 0.0, 0.0])
+
+
+@pytest.fixture(scope="module")
+def widening():
+    return DeepSdfModel(WideningLShapeDecoder(), torch.zeros(1, 3), {"name": "widening", "canonical_height": 1.5,
+                                                                     "canonical_radius": 0.95})
+
+
+@pytest.fixture(scope="module")
+def widened_mesh(widening):
+    return decode_mesh(widening.decoder, torch.tensor(TRUE_CODE, dtype=torch.float32), resolution=64).mesh
+
+
+def make_query(mesh, truth: Sim3, up, rng) -> SdfQuery:
+    placed = mesh.copy()
+    placed.vertices = truth.apply(mesh.vertices)
+    surface = np.asarray(placed.sample(3000, seed=1))
+    points = np.concatenate([surface + rng.normal(size=surface.shape) * 0.02,
+                             surface + rng.normal(size=surface.shape) * 0.15])
+    floor = None if up is None else float((placed.vertices @ up).min())
+    return SdfQuery(points, signed_distance(placed, points), surface, up=up, floor_offset=floor)
+
+
+def tilted_truth(theta: float) -> tuple[Sim3, np.ndarray]:
+    up = np.array([0.3, 0.9, -0.2])
+    up /= np.linalg.norm(up)
+    rotation = axis_angle_matrix(up, theta) @ rotation_between([0, 1, 0], up)
+    return Sim3(1.7, rotation, np.array([2.0, -1.0, 0.5])), up
+
+
+def test_known_axis_recovers_transform_and_code_from_the_theta_grid(widening, widened_mesh):
+    truth, up = tilted_truth(theta=2.2)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(0))
+    result = fit_query(widening, query, SETTINGS, seed=0)
+    assert result.info["fixed_parameters"] == ["psi", "rho"] and result.info["solver"] == "gauss-newton"
+    assert result.transform.s == pytest.approx(truth.s, rel=0.02)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 2.0
+    assert np.linalg.norm(result.transform.t - truth.t) < 0.03
+    assert result.latent[0] == pytest.approx(TRUE_CODE[0], abs=0.03)
+    assert result.info["iterations"] < SETTINGS.iterations  # converged: stopped early
+
+
+def test_unknown_axis_recovers_transform_and_code_from_a_nearby_start(widening, widened_mesh):
+    psi, rho = spherical_from_axis(np.array([0.2, 0.7, 0.68]))
+    axis = np.array([np.sin(psi) * np.cos(rho), np.sin(psi) * np.sin(rho), np.cos(psi)])
+    truth = Sim3(1.3, axis_angle_matrix(axis, 0.9), np.array([0.5, 1.0, -2.0]))
+    query = make_query(widened_mesh, truth, None, np.random.default_rng(1))
+    start = Init(scale=1.3 * 1.2, psi=psi + 0.08, rho=rho - 0.08, theta=0.9 + 0.3,
+                 translation=truth.t + np.array([0.1, -0.05, 0.05]), latent=np.zeros(3))
+    result = fit_query(widening, query, SETTINGS, inits=[start], seed=0)
+    assert result.info["fixed_parameters"] == []
+    assert result.transform.s == pytest.approx(truth.s, rel=0.02)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 2.0
+    assert np.linalg.norm(result.transform.t - truth.t) < 0.03
+    assert result.latent[0] == pytest.approx(TRUE_CODE[0], abs=0.03)
+
+
+def _small_problem(rng: np.random.Generator, *, whitened: bool) -> tuple:
+    """A random double-precision decoder, two hypotheses and 300 samples (a third only lower bounds)."""
+    torch.manual_seed(0)
+    decoder = Decoder(DecoderConfig(latent_size=4, hidden=32, depth=3, skip_layer=2, weight_norm=False)).double()
+    decoder.requires_grad_(False)
+    prior = LatentPrior.of_codes(rng.normal(size=(10, 4)), shrinkage=0.1) if whitened else None
+    inits = [Init(1.0 + 0.2 * h, 0.4 + 0.1 * h, 0.3, 0.5 + 0.5 * h, rng.normal(size=3) * 0.1,
+                  latent=rng.normal(size=4) * 0.3, base_rotation=rotation_between([0, 1, 0], [0.2, 1.0, 0.1]))
+             for h in range(2)]
+    batch = HypothesisBatch(inits, 4, latent_init_std=0.0, prior=prior)
+    points = torch.as_tensor(rng.normal(size=(300, 3)) * 0.6)
+    sdf = torch.as_tensor(rng.normal(size=300) * 0.05)
+    lower = torch.as_tensor(np.arange(300) % 3 == 0)
+    problem = Problem(points, sdf, lower, clamp=0.2, huber=0.01, penalty=1e-3, scale_prior=(0.05, 1.1))
+    whitening = None if prior is None else (batch.prior_mean, batch.prior_factor)
+    return decoder, batch, problem, whitening
+
+
+def _residuals(decoder: Decoder, batch: HypothesisBatch, problem: Problem) -> torch.Tensor:
+    """The data residuals (H, K) by the Adam loss's own path: clamp(s f(x_c, z)) − clamp(φ), one-sided
+    where ``lower``."""
+    canonical = batch.to_canonical(problem.points)
+    h, k = canonical.shape[:2]
+    z = batch.latent[:, None, :].expand(h, k, -1)
+    pred = batch.scale[:, None] * decoder(canonical.reshape(h * k, 3), z.reshape(h * k, -1)).reshape(h, k)
+    r = pred.clamp(-problem.clamp, problem.clamp) - problem.sdf.clamp(-problem.clamp, problem.clamp)[None]
+    return torch.where(problem.lower[None] & (r > 0), torch.zeros_like(r), r)
+
+
+@pytest.mark.parametrize(("whitened", "fixed"), [(False, frozenset()), (True, frozenset({"psi", "rho"}))])
+def test_step_equals_the_finite_difference_gauss_newton_step(whitened, fixed):
+    decoder, batch, problem, whitening = _small_problem(np.random.default_rng(0), whitened=whitened)
+    p0 = pack(batch)
+    free = free_columns(fixed, 4)
+    lin = linearize(decoder, p0, batch.base_rotation, problem, whitening, free)
+    step, solved = damped_step(lin, torch.zeros(2, dtype=torch.float64))
+    assert solved.all()
+
+    def residuals(p: torch.Tensor) -> torch.Tensor:
+        probe = HypothesisBatch([Init(1.0, 0.0, 0.0, 0.0, np.zeros(3))] * 2, 4, latent_init_std=0.0,
+                                prior=None if whitening is None else LatentPrior(whitening[0].numpy(),
+                                                                                 whitening[1].numpy()))
+        probe.base_rotation = batch.base_rotation
+        with torch.no_grad():
+            for name, value in zip(("scale", "psi", "rho", "theta"), p[:, :4].T, strict=True):
+                getattr(probe, name).copy_(value)
+            probe.translation.copy_(p[:, 4:7])
+            probe.code.copy_(p[:, 7:])
+            return _residuals(decoder, probe, problem)
+
+    r0 = residuals(p0)
+    eps = 1e-6
+    jac = torch.zeros(2, 300, len(free), dtype=torch.float64)
+    for j, col in enumerate(free.tolist()):
+        plus, minus = p0.clone(), p0.clone()
+        plus[:, col] += eps
+        minus[:, col] -= eps
+        jac[:, :, j] = (residuals(plus) - residuals(minus)) / (2 * eps)
+    weight = 0.5 / r0.abs().clamp(min=problem.huber) / 300  # IRLS: the quadratic touching |r| at r0
+    hessian = torch.einsum("hkf,hk,hkg->hfg", jac, weight, jac)
+    gradient = torch.einsum("hkf,hk->hf", jac, weight * r0)
+    code_cols = [j for j, c in enumerate(free.tolist()) if c >= 7]
+    hessian[:, code_cols, code_cols] += problem.penalty  # rows sqrt(λ) code
+    gradient[:, code_cols] += problem.penalty * p0[:, 7:]
+    w, s0 = problem.scale_prior  # a row sqrt(w s0) ln(s/s0)
+    s = p0[:, 0]
+    hessian[:, 0, 0] += w * s0 / s**2
+    gradient[:, 0] += w * s0 * torch.log(s / s0) / s
+    expected = torch.linalg.solve(hessian, -gradient[..., None])[..., 0]
+    torch.testing.assert_close(step, expected, rtol=1e-4, atol=1e-7)
+    torch.testing.assert_close(lin.gradient, gradient, rtol=1e-5, atol=1e-9)
+
+
+def test_yaw_screening_keeps_the_right_yaw_by_forward_passes(widening, widened_mesh):
+    truth, up = tilted_truth(theta=-1.3)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(2))
+    settings = replace(SETTINGS, theta_grid_deg=10.0, yaw_screen_keep=3, yaw_screen_samples=300, prune_after=None)
+    inits = initial_hypotheses(query, ClassGeometry(1.5, 0.95), settings)
+    out = solve(widening.decoder, query, inits, settings, fixed=frozenset({"psi", "rho"}),
+                generator=torch.Generator().manual_seed(0))
+    assert len(inits) == 36 and len(out.survivors) == 3 and len(out.pruned_losses) == 33
+    start_errors = [rotation_angle_deg(HypothesisBatch([inits[i]], 3, latent_init_std=0).transform(0).R, truth.R)
+                    for i in out.survivors]
+    assert min(start_errors) <= 5.0 + 1e-6  # the start nearest the truth (10-degree grid) went on
+    assert out.evaluations >= 36 * 300
+
+
+def test_fixed_parameters_do_not_move_and_scale_stays_in_bounds(widening, widened_mesh):
+    truth, up = tilted_truth(theta=0.3)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(3))
+    psi, rho = spherical_from_axis(up)
+    inits = [Init(scale=0.02, psi=psi, rho=rho, theta=0.3, translation=truth.t,
+                  base_rotation=rotation_between([0, 1, 0], up))]
+    settings = replace(SETTINGS, iterations=10, prune_after=None, scale_min=0.01, scale_max=0.05)
+    out = solve(widening.decoder, query, inits, settings, fixed=frozenset({"psi", "rho", "translation"}),
+                generator=torch.Generator().manual_seed(0))
+    assert float(out.batch.psi[0]) == psi and float(out.batch.rho[0]) == rho
+    np.testing.assert_array_equal(out.batch.translation[0].detach().numpy(), truth.t)
+    assert 0.01 <= float(out.batch.scale[0].detach()) <= 0.05
+
+
+class _BlowsUpFarAway(LShapeDecoder):
+    """The L-shape, NaN wherever a canonical point lies beyond radius 20 (a broken model)."""
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        f = super().forward(points, codes)
+        return torch.where(points.norm(dim=-1) > 20.0, torch.full_like(f, float("nan")), f)
+
+
+def test_a_diverging_hypothesis_is_dropped_and_recorded_and_all_failing_is_an_error(widened_mesh):
+    model = DeepSdfModel(_BlowsUpFarAway(), torch.zeros(1, 4), {"name": "broken", "canonical_height": 1.5,
+                                                                "canonical_radius": 0.95})
+    truth, up = tilted_truth(theta=0.0)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(4))
+    psi, rho = spherical_from_axis(up)
+    base = rotation_between([0, 1, 0], up)
+    good = Init(truth.s, psi, rho, 0.0, truth.t, base_rotation=base)
+    tiny = replace(good, scale=0.011)  # the scan's points fall far outside the canonical sphere
+    result = fit_query(model, query, replace(SETTINGS, iterations=5), inits=[tiny, good], seed=0)
+    assert list(result.info["failed_hypotheses"]) == ["0"]
+    assert result.hypotheses[0].failed and result.hypotheses[0].to_json()["loss"] is None
+    assert result.info["winner_hypothesis"] == 1 and np.isfinite(result.loss)
+    with pytest.raises(JsrteError, match="every hypothesis"):
+        fit_query(model, query, replace(SETTINGS, iterations=5), inits=[tiny, tiny], seed=0)
+
+
+def test_an_unknown_solver_is_refused(widening, widened_mesh):
+    truth, up = tilted_truth(theta=0.0)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(5))
+    with pytest.raises(ValueError, match="unknown solver"):
+        fit_query(widening, query, replace(SETTINGS, solver="newton"), seed=0)
+
+
+def test_linearization_objective_is_the_adam_loss_up_to_the_huber_smoothing():
+    decoder, batch, problem, _ = _small_problem(np.random.default_rng(1), whitened=False)
+    decoder = decoder.float()  # as the Adam loss evaluates it
+
+    lin = linearize(decoder, pack(batch), batch.base_rotation, problem, None, None)
+    assert isinstance(lin, Linearization) and lin.hessian is None
+    adam = hypothesis_losses(decoder, batch, problem.points, problem.sdf, clamp=problem.clamp,
+                             latent_penalty=problem.penalty, lower_bound=problem.lower,
+                             scale_prior=problem.scale_prior).double()
+    # Huber differs from |r| by at most δ/2 per sample
+    assert torch.all((lin.objective - adam).abs() <= problem.huber / 2 + 1e-6)
+
+
+def test_latent_only_reconstruction_by_gauss_newton_recovers_a_sphere():
+    """``jsrte reconstruct``'s latent-only fit by Levenberg–Marquardt: a sphere of radius 2 at
+    (1, −2, 3), normalized to radius 1/1.03, is the analytic sphere model with z_0 + z_1 = 1/1.03 − 0.5,
+    shared equally by the code penalty; its surface comes back in the input's own frame."""
+    import trimesh
+
+    from analytic import SphereDecoder
+    from jsrte.model.reconstruct import LATENT_ONLY_GAUSS_NEWTON, reconstruct_latent, reconstruct_mesh
+
+    model = DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "sphere"})
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=2.0)
+    mesh.apply_translation([1.0, -2.0, 3.0])
+    latent, _ = reconstruct_latent(model, mesh, rng=np.random.default_rng(0), settings=LATENT_ONLY_GAUSS_NEWTON)
+    assert latent.sum() == pytest.approx(1 / 1.03 - 0.5, abs=0.01)
+    assert latent[0] == pytest.approx(latent[1], abs=1e-3)
+    out, _ = reconstruct_mesh(model, mesh, rng=np.random.default_rng(0), resolution=32,
+                              settings=LATENT_ONLY_GAUSS_NEWTON)
+    np.testing.assert_allclose(out.bounds, mesh.bounds, atol=0.02)
+
+
+def test_the_fast_gn_preset_as_shipped_recovers_a_known_transform(widening, widened_mesh):
+    """``fast-gn``: whitened code, depth bounds under the floor, scale prior, 12 starts pruned
+    to 2 after 4 iterations."""
+    from jsrte.presets import get_preset
+
+    settings = replace(get_preset("fast-gn").fit, extract_resolution=32)
+    truth, up = tilted_truth(theta=-2.0)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(6))
+    result = fit_query(widening, query, settings, seed=0)
+    assert result.info["below_floor_samples"] == settings.below_floor_samples > 0
+    assert sum(not h.pruned for h in result.hypotheses) == 2 and len(result.hypotheses) == 12
+    assert result.transform.s == pytest.approx(truth.s, rel=0.03)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 3.0
+    assert np.linalg.norm(result.transform.t - truth.t) < 0.05

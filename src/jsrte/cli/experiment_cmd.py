@@ -44,10 +44,9 @@ def load_models(categories: tuple[str, ...], model: str | None) -> dict:
 
 
 def _check_out(out: Path, marker: str, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise JsrteError("is a file; give a folder", out)
-    if (out / marker).exists() and not overwrite:
-        raise JsrteError(f"already holds a result ({marker}); pass --overwrite to replace it", out)
+    from jsrte.cli.common import check_out_folder
+
+    check_out_folder(out, marker=marker, overwrite=overwrite)
 
 
 @experiment_app.command("synthetic")

@@ -22,12 +22,18 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
     non-finite vertices or zero surface area.
     """
     path = Path(path)
+    if path.is_dir():
+        raise JsrteError("is a folder, not a mesh file", path)
     if not path.is_file():
         raise JsrteError("no such file", path)
     if path.stat().st_size == 0:
         raise JsrteError("file is empty", path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise JsrteError(f"unsupported mesh format {path.suffix!r} (use {', '.join(MESH_SUFFIXES)})", path)
+    if path.suffix.lower() == ".ply":
+        from jsrte.scans.io import check_ply_complete
+
+        check_ply_complete(path)
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for broken files

@@ -25,8 +25,10 @@ LATENT_ONLY = FitSettings(iterations=400, samples_per_iteration=4000, lr=5e-3, l
 
 def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator,
                        settings: FitSettings = LATENT_ONLY,
-                       sampling: SdfSampling = SdfSampling(n_points=50_000)) -> tuple[np.ndarray, Normalization]:
-    """The latent code (d,) of ``mesh`` (canonical orientation), and its normalization."""
+                       sampling: SdfSampling = SdfSampling(n_points=50_000),
+                       progress: bool = False) -> tuple[np.ndarray, Normalization]:
+    """The latent code (d,) of ``mesh`` (canonical orientation), and its normalization
+    (``progress``: a bar over the optimizer's iterations)."""
     norm = unit_sphere_normalization(mesh)
     samples = sample_sdf(mesh, rng=rng, settings=sampling, normalization=norm)
     query = SdfQuery(samples.points.astype(np.float64), samples.sdf.astype(np.float64),
@@ -35,14 +37,15 @@ def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.ra
                 latent=model.mean_code().numpy() * 0.0)
     fixed = frozenset(PARAMETER_NAMES) - {"latent"}
     out = optimize(model.decoder, query, [init], settings, fixed=fixed,
-                   generator=torch.Generator().manual_seed(int(rng.integers(2**31))))
+                   generator=torch.Generator().manual_seed(int(rng.integers(2**31))), progress=progress)
     return out.batch.latent[0].detach().to("cpu", torch.float32).numpy(), norm
 
 
 def reconstruct_mesh(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator, resolution: int = 128,
-                     settings: FitSettings = LATENT_ONLY) -> tuple[trimesh.Trimesh | None, np.ndarray]:
+                     settings: FitSettings = LATENT_ONLY,
+                     progress: bool = False) -> tuple[trimesh.Trimesh | None, np.ndarray]:
     """Reconstructed surface in the input's own frame (or None), and the latent code."""
-    latent, norm = reconstruct_latent(model, mesh, rng=rng, settings=settings)
+    latent, norm = reconstruct_latent(model, mesh, rng=rng, settings=settings, progress=progress)
     out = decode_mesh(model.decoder, latent, resolution=resolution).mesh
     if out is not None:
         out.vertices = norm.to_mesh(out.vertices)

@@ -49,7 +49,8 @@ def _check_out(out: Path, marker: str, overwrite: bool) -> None:
     check_out_folder(out, marker=marker, overwrite=overwrite)
 
 
-@experiment_app.command("synthetic")
+@experiment_app.command("synthetic", short_help="Paper section 4.1 (Fig. 2): fits of held-out shapes under "
+                                                "random transforms.")
 def synthetic_command(
     out: Path = typer.Option(..., "--out", help="Output folder (runs.csv, summary.md/.csv, box plots)."),
     categories: str = typer.Option("chair,table,sofa,bed", help="Classes, comma-separated (those without a "

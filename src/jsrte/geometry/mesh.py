@@ -44,14 +44,23 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
 
 
 def validate_mesh(mesh: trimesh.Trimesh, path: str | Path | None = None) -> trimesh.Trimesh:
-    """Check a mesh is usable (finite vertices, faces, non-zero area); returns it."""
+    """Check a mesh is usable (finite vertices, faces on existing vertices, non-zero area); returns it."""
     if len(mesh.faces) == 0:
         raise JsrteError("mesh holds no triangles", path)
+    check_face_indices(mesh, path)
     if not np.all(np.isfinite(mesh.vertices)):
         raise JsrteError("mesh has NaN or infinite vertex coordinates", path)
     if not mesh.area > 0:
         raise JsrteError("mesh has zero surface area", path)
     return mesh
+
+
+def check_face_indices(mesh: trimesh.Trimesh, path: str | Path | None = None) -> None:
+    """JsrteError unless every face refers to an existing vertex (a damaged file can say otherwise)."""
+    faces = np.asarray(mesh.faces)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(mesh.vertices)):
+        raise JsrteError(f"faces refer to vertex {int(faces.max())}, but there are {len(mesh.vertices)} vertices",
+                         path)
 
 
 @dataclass(frozen=True)

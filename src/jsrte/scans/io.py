@@ -290,6 +290,9 @@ def _read_mesh(path: Path, dense_points: int, rng: np.random.Generator
         if path.suffix.lower() == ".obj":  # vertices only: a point cloud
             return _read_text_rows(path, prefix="v"), None
         raise JsrteError("holds no triangles and no points", path)
+    from jsrte.geometry.mesh import check_face_indices
+
+    check_face_indices(loaded, path)
     vertices = np.asarray(loaded.vertices, dtype=np.float64)
     if not np.all(np.isfinite(vertices)):
         raise JsrteError("has NaN or infinite coordinates", path)

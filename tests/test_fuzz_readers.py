@@ -1,0 +1,41 @@
+"""Fuzzing every reader: damaged scans, meshes, sample and query files, shape codes, models,
+training states and fit results end in a sane result or one clean error (``fuzz_cases``).
+
+A few examples per format keep this under a minute; ``benchmarks/bench_fuzz.py`` runs many and
+prints the outcomes per format.
+"""
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+
+from fuzz_cases import READERS, TEXT_FORMATS, mutate, mutations, original_bytes, run_case
+
+EXAMPLES = 12
+
+
+@pytest.mark.parametrize("fmt", sorted(READERS))
+def test_the_original_file_reads(fmt):
+    assert run_case(fmt, original_bytes(fmt)) == "result"
+
+
+@pytest.mark.parametrize("fmt", sorted(READERS))
+def test_a_damaged_file_is_a_result_or_one_clean_error(fmt):
+    original = original_bytes(fmt)
+
+    @settings(max_examples=EXAMPLES, deadline=None, database=None,
+              suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+    @given(mutations(fmt))
+    def case(edits):
+        run_case(fmt, mutate(original, edits))
+
+    case()
+
+
+@pytest.mark.parametrize("fmt", sorted(READERS))
+def test_an_empty_or_cut_file_is_one_clean_error(fmt):
+    original = original_bytes(fmt)
+    sizes = [0, 1, 4, len(original) // 2] + ([] if fmt in TEXT_FORMATS else [len(original) - 1])
+    for size in sizes:
+        if fmt in ("xyz", "obj", "off") and size > 4:
+            continue  # text rows: a shorter file is a smaller valid file
+        assert run_case(fmt, original[:size]) == "error", (fmt, size)

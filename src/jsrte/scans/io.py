@@ -116,7 +116,7 @@ def read_scan_info(ply_path: str | Path) -> ScanInfo | None:
 
 def _ply_face_count(path: Path) -> int:
     """Number of faces a PLY header declares (0 for a point cloud)."""
-    return sum(count for name, count, _ in ply_header(path)[1] if name == "face")
+    return sum(count for name, count, _, _ in ply_header(path)[1] if name == "face")
 
 
 PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
@@ -125,10 +125,11 @@ PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort":
 MAX_HEADER_LINES = 500
 
 
-def ply_header(path: Path) -> tuple[str, list[tuple[str, int, int | None]], int]:
+def ply_header(path: Path) -> tuple[str, list[tuple[str, int, int | None, list[str]]], int]:
     """(format, elements, header bytes) of a PLY file; each element is (name, count, bytes per
-    item, or None when it has a list property). JsrteError naming the file if malformed."""
-    elements: list[tuple[str, int, int | None]] = []
+    item or None when it has a list property, property names). JsrteError naming the file if
+    malformed, or if its vertices lack x, y or z or have only some of nx, ny, nz."""
+    elements: list[tuple[str, int, int | None, list[str]]] = []
     fmt = None
     with path.open("rb") as f:
         if f.readline().strip() != b"ply":
@@ -141,22 +142,37 @@ def ply_header(path: Path) -> tuple[str, list[tuple[str, int, int | None]], int]
             if words == ["end_header"]:
                 if fmt is None:
                     raise JsrteError("malformed PLY header (no format line)", path)
+                _check_fields(dict((e[0], e[3]) for e in elements).get("vertex"), ("nx", "ny", "nz"), path)
                 return fmt, elements, f.tell()
             if not words or words[0] in ("comment", "obj_info"):
                 continue
             if words[0] == "format" and len(words) >= 2:
                 fmt = words[1]
             elif words[0] == "element" and len(words) == 3:
-                elements.append((words[1], _element_count(words[2], path), 0))
+                elements.append((words[1], _element_count(words[2], path), 0, []))
             elif words[0] == "property" and elements and len(words) >= 3:
-                name, count, size = elements[-1]
+                name, count, size, names = elements[-1]
                 item = PLY_SIZES.get(words[1]) if len(words) == 3 else None
                 if len(words) == 3 and item is None:
                     raise JsrteError(f"malformed PLY header (unknown property type {words[1]!r})", path)
-                elements[-1] = (name, count, None if size is None or item is None else size + item)
+                elements[-1] = (name, count, None if size is None or item is None else size + item,
+                                names + [words[-1]])
             else:
                 raise JsrteError(f"malformed PLY header (line {' '.join(words)[:40]!r})", path)
     raise JsrteError("malformed PLY header (no end_header)", path)
+
+
+def _check_fields(names: list[str] | None, normals: tuple[str, str, str], path: Path) -> None:
+    """JsrteError unless the point fields ``names`` hold x, y and z, and all or none of ``normals``."""
+    if names is None:
+        return
+    missing = [axis for axis in ("x", "y", "z") if axis not in names]
+    if missing:
+        raise JsrteError(f"the points have no {', '.join(missing)} coordinate (fields: {' '.join(names)[:80]})",
+                         path)
+    present = [n for n in normals if n in names]
+    if present and len(present) != 3:
+        raise JsrteError(f"the points have normal components {', '.join(present)} but not all three", path)
 
 
 def _element_count(text: str, path: Path) -> int:
@@ -178,7 +194,7 @@ def check_ply_complete(path: Path) -> None:
     """
     fmt, elements, header_bytes = ply_header(path)
     counted, items, size = [], 0, 0
-    for name, count, item_bytes in elements:
+    for name, count, item_bytes, _ in elements:
         if item_bytes is None:
             break
         counted.append(f"{count} {name}")
@@ -224,11 +240,16 @@ def check_pcd_complete(path: Path) -> None:
             points = int(fields["POINTS"][0])
             sizes = [PCD_ITEM[s] for s in fields["SIZE"]]
             counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
+            types = fields["TYPE"]
+            names = fields["FIELDS"]
             data = fields["DATA"][0].lower()
         except (KeyError, IndexError, ValueError):
-            raise JsrteError("malformed PCD header (POINTS, SIZE, COUNT or DATA)", path) from None
-        if len(counts) != len(sizes) or points < 0 or min(counts, default=1) < 0:
-            raise JsrteError("malformed PCD header (POINTS, SIZE and COUNT disagree)", path)
+            raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE, COUNT, POINTS or DATA)", path) from None
+        if not len(names) == len(types) == len(counts) == len(sizes) or points < 0 or min(counts, default=1) < 0:
+            raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE and COUNT disagree)", path)
+        if any(t not in ("F", "I", "U") for t in types):
+            raise JsrteError(f"malformed PCD header (TYPE {' '.join(types)[:40]})", path)
+        _check_fields(names, ("normal_x", "normal_y", "normal_z"), path)
         if data == "ascii":
             lines = sum(1 for line in f if line.strip())
             if lines < points:

@@ -56,8 +56,11 @@ def validate_mesh(mesh: trimesh.Trimesh, path: str | Path | None = None) -> trim
 
 
 def check_face_indices(mesh: trimesh.Trimesh, path: str | Path | None = None) -> None:
-    """JsrteError unless every face refers to an existing vertex (a damaged file can say otherwise)."""
-    faces = np.asarray(mesh.faces)
+    """JsrteError unless the vertices are (n, 3), the faces (m, 3), and every face refers to an
+    existing vertex (a damaged file can say otherwise)."""
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise JsrteError(f"vertices {vertices.shape} and faces {faces.shape} are not 3D triangles", path)
     if faces.size and (faces.min() < 0 or faces.max() >= len(mesh.vertices)):
         raise JsrteError(f"faces refer to vertex {int(faces.max())}, but there are {len(mesh.vertices)} vertices",
                          path)

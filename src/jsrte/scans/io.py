@@ -329,7 +329,11 @@ def _read_mesh(path: Path, dense_points: int, rng: np.random.Generator
 
 
 def _checked(points: np.ndarray, normals: np.ndarray | None, path: Path) -> ScanCloud:
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = np.asarray(points, dtype=np.float64)
+    if points.size == 0:
+        points = points.reshape(0, 3)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise JsrteError(f"holds points of shape {points.shape}, not 3D points", path)
     if len(points) == 0:
         raise JsrteError("holds no points (empty or unreadable point cloud)", path)
     bad = ~np.all(np.isfinite(points), axis=1)

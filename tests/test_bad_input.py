@@ -375,3 +375,16 @@ def test_procedural_meshes_are_watertight_once_read_back(tmp_path, category, set
     mesh = trimesh.load(path, force="mesh")  # vertices merged, as every reader does
     _, counts = np.unique(np.sort(mesh.edges, axis=1), axis=0, return_counts=True)
     assert counts.max() == 2 and mesh.is_watertight
+
+
+def test_cli_resume_of_a_damaged_state_says_what_to_delete_before_sampling(tmp_path, run_cli):
+    from jsrte.model.train import STATE_NAME
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / STATE_NAME).write_bytes(b"\x08\x00\x00\x00\x00\x00\x00\x00{}damaged")
+    code, _, err = run_cli(["train", "--out", run, "--resume"])
+    assert code == 2 and err.count("\n") == 1 and f"delete {STATE_NAME}" in err
+    assert not (run / "data").exists()  # refused before sampling the shapes
+    code, _, err = run_cli(["train", "--out", run])
+    assert code == 2 and "--resume" in err

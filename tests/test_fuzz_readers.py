@@ -52,3 +52,31 @@ def test_a_header_with_a_missing_field_is_one_clean_error(fmt, old, new):
         old = old.replace(b"double", b"float")
     assert old in original
     assert run_case(fmt, original.replace(old, new, 1)) == "error"
+
+
+def _cli_args(fmt, path, tmp_path):
+    """The command that reads a file of ``fmt`` first, with ``path`` as that file."""
+    from fuzz_cases import originals
+
+    if fmt == "jsrte":
+        return ["decode", path, "--out", tmp_path / "m.ply"]
+    if fmt == "model":
+        return ["fit", originals()["ply-binary"], "--model", path, "--out", tmp_path / "out"]
+    if fmt == "fit-json":
+        return ["encode", path.parent, "--out", tmp_path / "c.jsrte"]
+    return ["fit", path, "--out", tmp_path / "out", "--preset", "smoke", "--no-progress", "--threads", "1"]
+
+
+@pytest.mark.parametrize("fmt", sorted(set(READERS) - {"train-state"}))
+def test_cli_on_a_damaged_file_is_one_line(fmt, tmp_path, run_cli):
+    from fuzz_cases import originals
+
+    original = original_bytes(fmt)
+    for i, data in enumerate((original[: len(original) // 2], original[:7])):
+        folder = tmp_path / f"case{i}"
+        folder.mkdir()
+        path = folder / originals()[fmt].name
+        path.write_bytes(data)
+        code, _, err = run_cli(_cli_args(fmt, path, folder))
+        assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, (fmt, err)
+        assert not (folder / "out").exists() and not (folder / "c.jsrte").exists()

@@ -53,6 +53,10 @@ def train(
         raise JsrteError("already holds a training run; pass --resume to continue it", out)
     if resume and not started:
         raise JsrteError(f"nothing to resume ({STATE_NAME} missing)", out)
+    if resume:
+        from jsrte.model.train import readable_state
+
+        readable_state(out)  # a damaged state is reported before the data is sampled
     try:
         _train(out, category, shapes, data, arch, name, resume, threads, progress,
                TrainSettings(steps=steps, shapes_per_batch=batch_shapes, points_per_shape=points, lr_net=lr_net,

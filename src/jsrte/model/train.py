@@ -283,23 +283,9 @@ class Trainer:
     def load_checkpoint(self) -> None:
         """Restore the state written by :meth:`save_checkpoint` (for ``--resume``); if the last
         checkpoint is unreadable, the one before it (``resumed_from`` says which was read)."""
-        problems = []
-        for name in (STATE_NAME, PREVIOUS_STATE_NAME):
-            path = self.out_dir / name
-            if not path.is_file():
-                continue
-            try:
-                meta, tensors = _read_state(path)
-            except JsrteError as exc:
-                problems.append(str(exc))
-                continue
-            self._restore(path, meta, tensors)
-            self.resumed_from = path
-            return
-        found = "; ".join(problems) or f"no {STATE_NAME}"
-        raise JsrteError(f"cannot resume ({found}); to start this run over, delete {STATE_NAME}, "
-                         f"{PREVIOUS_STATE_NAME} and {LOG_NAME} (the sampled shapes in data/ are kept)",
-                         self.out_dir)
+        path, meta, tensors = readable_state(self.out_dir)
+        self._restore(path, meta, tensors)
+        self.resumed_from = path
 
     def _restore(self, path: Path, meta: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
         """Load a readable training state; JsrteError if it belongs to another run."""
@@ -329,6 +315,23 @@ class Trainer:
         self.saved_step = self.step
         if self.is_main:
             _truncate_log(self.out_dir / LOG_NAME, self.step)
+
+
+def readable_state(out_dir: Path) -> tuple[Path, dict[str, Any], dict[str, torch.Tensor]]:
+    """The last readable training state in ``out_dir`` (the last checkpoint, else the one before):
+    its path, metadata and tensors; JsrteError saying what to delete when neither reads."""
+    problems = []
+    for name in (STATE_NAME, PREVIOUS_STATE_NAME):
+        path = Path(out_dir) / name
+        if not path.is_file():
+            continue
+        try:
+            return (path, *_read_state(path))
+        except JsrteError as exc:
+            problems.append(str(exc))
+    found = "; ".join(problems) or f"no {STATE_NAME}"
+    raise JsrteError(f"cannot resume ({found}); to start this run over, delete {STATE_NAME}, "
+                     f"{PREVIOUS_STATE_NAME} and {LOG_NAME} (the sampled shapes in data/ are kept)", out_dir)
 
 
 def _read_state(path: Path) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:

@@ -238,15 +238,19 @@ def check_pcd_complete(path: Path) -> None:
         header_bytes = f.tell()
         try:
             points = int(fields["POINTS"][0])
+            width, height = int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])
             sizes = [PCD_ITEM[s] for s in fields["SIZE"]]
             counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
             types = fields["TYPE"]
             names = fields["FIELDS"]
             data = fields["DATA"][0].lower()
         except (KeyError, IndexError, ValueError):
-            raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE, COUNT, POINTS or DATA)", path) from None
+            raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE, COUNT, WIDTH, HEIGHT, POINTS or DATA)",
+                             path) from None
         if not len(names) == len(types) == len(counts) == len(sizes) or points < 0 or min(counts, default=1) < 0:
             raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE and COUNT disagree)", path)
+        if width < 0 or height < 0 or width * height != points:
+            raise JsrteError(f"malformed PCD header (WIDTH {width} x HEIGHT {height} is not POINTS {points})", path)
         if any(t not in ("F", "I", "U") for t in types):
             raise JsrteError(f"malformed PCD header (TYPE {' '.join(types)[:40]})", path)
         _check_fields(names, ("normal_x", "normal_y", "normal_z"), path)

@@ -45,8 +45,10 @@ def test_an_empty_or_cut_file_is_one_clean_error(fmt):
     ("pcd-binary", b" normal_y ", b" l_y "),  # Open3D crashed (segmentation fault) on this one
     ("pcd-ascii", b" normal_y ", b" l_y "),
     ("ply-binary", b"property double z\n", b""),  # Open3D returned the points with z missing
+    ("pcd-ascii", b"COUNT 1 1 1 1 1 1", b"COUNT 1 1 1 1 99999999999999999999 1"),  # Open3D crashed
+    ("pcd-binary", b"WIDTH 60", b"WIDTH 99999999999"),
 ])
-def test_a_header_with_a_missing_field_is_one_clean_error(fmt, old, new):
+def test_a_header_with_a_missing_or_absurd_field_is_one_clean_error(fmt, old, new):
     original = original_bytes(fmt)
     if old not in original:  # the writer's header differs from the one this case was found with
         old = old.replace(b"double", b"float")

@@ -219,6 +219,9 @@ def check_ply_complete(path: Path) -> None:
 
 
 PCD_ITEM = {"1": 1, "2": 2, "4": 4, "8": 8}
+MAX_PCD_COUNT = 4096
+"""Largest COUNT of a PCD field (descriptors have tens to hundreds; Open3D allocates what it says)."""
+PCD_POINT_FIELDS = ("x", "y", "z", "normal_x", "normal_y", "normal_z")
 """Bytes of a PCD field by its SIZE entry."""
 
 
@@ -251,6 +254,9 @@ def check_pcd_complete(path: Path) -> None:
             raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE and COUNT disagree)", path)
         if width < 0 or height < 0 or width * height != points:
             raise JsrteError(f"malformed PCD header (WIDTH {width} x HEIGHT {height} is not POINTS {points})", path)
+        if any(not 1 <= c <= MAX_PCD_COUNT for c in counts) or any(
+                c != 1 for n, c in zip(names, counts, strict=True) if n in PCD_POINT_FIELDS):
+            raise JsrteError(f"malformed PCD header (COUNT {' '.join(map(str, counts))[:60]})", path)
         if any(t not in ("F", "I", "U") for t in types):
             raise JsrteError(f"malformed PCD header (TYPE {' '.join(types)[:40]})", path)
         _check_fields(names, ("normal_x", "normal_y", "normal_z"), path)

@@ -11,6 +11,7 @@ Used by ``tests/test_fuzz_readers.py`` (a few examples per format, in CI) and by
 
 from __future__ import annotations
 
+import atexit
 import json
 import re
 import shutil
@@ -53,6 +54,7 @@ def originals() -> dict[str, Path]:
     from jsrte.sdf.mesh_sdf import SdfSamples
 
     root = Path(tempfile.mkdtemp(prefix="jsrte-fuzz-originals-"))
+    atexit.register(shutil.rmtree, root, ignore_errors=True)
     rng = np.random.default_rng(0)
     points = rng.uniform(-0.5, 0.5, (60, 3))
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))

@@ -401,8 +401,11 @@ def test_cli_refuses_overwrite_corrupt_input_and_empty_surface(tmp_path, monkeyp
 
 def test_encode_a_scan_runs_the_fit(tmp_path, monkeypatch, capsys, models):
     """A scan file goes through jsrte.fit.fit (stubbed here: the fit has its own tests)."""
-    import jsrte.fit
+    import importlib
+
     from jsrte.fit.result import FitResult
+
+    fit_module = importlib.import_module("jsrte.fit")  # the subpackage (``jsrte.fit`` is the function)
 
     latent = np.full(8, 0.1, np.float32)
     transform = fp32_transform(2.0, [0, 1, 0], 0.3, [1, 0, 0])
@@ -412,7 +415,7 @@ def test_encode_a_scan_runs_the_fit(tmp_path, monkeypatch, capsys, models):
         calls.update(scan=scan, model=model.name, preset=preset)
         return FitResult("jsrte", transform, latent, None, 0.0, {"name": "loss"})
 
-    monkeypatch.setattr(jsrte.fit, "fit", fake_fit)
+    monkeypatch.setattr(fit_module, "fit", fake_fit)
     scan = tmp_path / "scan.ply"
     trimesh.creation.icosphere(1).export(scan)
     code_path = tmp_path / "obj.jsrte"

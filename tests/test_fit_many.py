@@ -241,3 +241,57 @@ def test_cli_fit_end_to_end_with_viewpoints(model_file, scan_pool, tmp_path, run
     code, _, err = run_cli([*common, "--no-line-of-sight", "--out", str(out)])  # the last flag wins
     assert code == 0, err
     assert json.loads((out / "fit.json").read_text())["query"]["ray_freespace_samples"] == 0
+
+
+def test_summary_records_the_model_and_preset(first_run, model_file):
+    from jsrte.model.checkpoint import file_hash
+
+    rows = _summary(first_run[1])
+    assert {(r["model"], r["model_sha256"], r["preset"]) for r in rows.values()} == {
+        ("tiny-chair", file_hash(model_file), "smoke")}
+
+
+def test_results_of_another_model_or_preset_are_not_reused(first_run, model_file, tmp_path):
+    folder, out, _ = first_run
+    stamps = {p: p.stat().st_mtime_ns for p in out.glob("*/fit.json")}
+    with pytest.raises(JsrteError, match=r"made with model 'tiny-chair' .* preset 'smoke'.*--overwrite"):
+        fit_many(folder, out=out, model=model_file, workers=1, **(FAST | {"preset": "fast"}))
+    from jsrte.model.checkpoint import load_model
+
+    other = tmp_path / "table.safetensors"
+    model = load_model(model_file)
+    model.meta["name"] = "tiny-table"
+    save_model(model, other)
+    with pytest.raises(JsrteError, match="this run uses model 'tiny-table'.*another --out"):
+        fit_many(folder, out=out, model=other, workers=1, **FAST)
+    assert {p: p.stat().st_mtime_ns for p in out.glob("*/fit.json")} == stamps
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_killed_run_leaves_no_orphans_and_resumes_to_the_same_results(first_run, model_file, scan_pool,
+                                                                         tmp_path):
+    from process_tree import kill_all, wait_for_descendants, wait_until_gone
+
+    scans, _ = scan_pool
+    folder, out = tmp_path / "scans", tmp_path / "out"
+    for scan in scans[:2]:
+        _copy_scan(scan, folder)
+    cmd = JSRTE + ["fit-many", str(folder), "--model", str(model_file), "--preset", "smoke", "--hypotheses", "2",
+                   "--no-progress", "--workers", "2", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)))
+    try:
+        workers = wait_for_descendants(proc.pid, 3, timeout=120)  # two workers and the resource tracker
+        assert len(workers) >= 2, "the workers never started"
+        proc.kill()
+        proc.wait()
+        assert not wait_until_gone(workers, timeout=20), "worker processes outlived their parent"
+    finally:
+        proc.kill()
+        kill_all(wait_for_descendants(proc.pid, 0, 0))
+    report = fit_many(folder, out=out, model=model_file, workers=2, **FAST)
+    assert report.failed == 0 and report.fitted + report.skipped == 2
+    for stem in ("chair_0", "chair_1"):
+        resumed = json.loads((out / stem / "fit.json").read_text())
+        straight = json.loads((first_run[1] / stem / "fit.json").read_text())
+        assert resumed["scale"] == straight["scale"] and resumed["latent"] == straight["latent"]

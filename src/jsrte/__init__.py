@@ -1,22 +1,64 @@
 """jsrte: joint 3D shape retrieval and similarity-transform estimation (DeepSDF-based).
 
-Conventions (see docs/conventions.md):
+Conventions (docs/conventions.md):
 - canonical frame of ShapeNetCore v2: +y up, front towards -z, DeepSDF unit-sphere normalization;
 - SDF negative inside, positive outside;
 - a similarity ``scan_from_canonical`` maps canonical x to ``s * R @ x + t`` (scan units, metres),
   and ``sdf_scan(g(x)) = s * sdf_canonical(x)``.
+
+``jsrte.fit(...)`` is the fit function (the README's Python API), also after the subpackage
+``jsrte.fit`` has been imported (``from jsrte.fit import fit_query`` and the like still work).
 """
 
+from __future__ import annotations
+
+import sys
+import types
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 from jsrte.errors import JsrteError
+
+if TYPE_CHECKING:
+    import numpy as np
+    import torch
+
+    from jsrte.fit.optimize import SdfQuery
+    from jsrte.fit.result import FitResult
+    from jsrte.model.checkpoint import DeepSdfModel
 
 __version__ = "0.1.0"
 
 
-def fit(*args, **kwargs):  # noqa: ANN002, ANN003, ANN201
-    """``jsrte.fit.fit``: see its docstring (imported lazily to keep ``import jsrte`` light)."""
+def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
+        up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool | None = None,
+        free_axis: bool = False,
+        hypotheses: int | None = None, seed: int = 0, progress: bool = False,
+        device: str | torch.device | None = None, units_check: bool = True) -> FitResult:
+    """Find the shape and the similarity transform that explain ``query`` (a scan file, a mesh,
+    SDF samples, a query file, or an ``SdfQuery``) with ``model`` (a shipped name, a file, or a
+    loaded model). Returns a ``FitResult`` (``.transform``, ``.latent``, ``.mesh``, ``.to_json()``).
+
+    The same function as ``from jsrte.fit import fit`` (imported on first call, to keep
+    ``import jsrte`` light); its docstring describes every parameter.
+    """
     from jsrte.fit import fit as _fit
 
-    return _fit(*args, **kwargs)
+    return _fit(query, model=model, preset=preset, up=up, viewpoints=viewpoints, line_of_sight=line_of_sight,
+                free_axis=free_axis, hypotheses=hypotheses, seed=seed, progress=progress, device=device,
+                units_check=units_check)
 
+
+class _Package(types.ModuleType):
+    """The ``jsrte`` module: importing the subpackage ``jsrte.fit`` leaves ``jsrte.fit`` the function
+    (the import system would otherwise bind the name to the subpackage)."""
+
+    def __setattr__(self, name: str, value: object) -> None:
+        if name == "fit" and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
 
 __all__ = ["JsrteError", "__version__", "fit"]

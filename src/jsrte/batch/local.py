@@ -40,7 +40,7 @@ def run_local(jobs: Iterable[ScanJob], blob: ModelBlob, *, workers: int, retries
     while True:
         with _one_thread_children(), ProcessPoolExecutor(workers, mp_context=context,
                                                          initializer=init_local_worker,
-                                                         initargs=(blob,)) as pool:
+                                                         initargs=(blob, os.getpid())) as pool:
             lost = _drain(pool, source, again, workers * IN_FLIGHT_PER_WORKER, on_done)
         if lost is None:
             return

@@ -7,7 +7,9 @@ Layout of the output folder ``out``::
 
 A scan is done when ``out/<name>/fit.json`` exists (it is written last, atomically): a rerun
 skips it, so an interrupted run loses nothing that finished and fits nothing twice; failed
-scans are tried again. ``summary.csv`` is rewritten atomically after every scan.
+scans are tried again. ``summary.csv`` is rewritten atomically after every scan. Results are
+reused only when made with the same model (by SHA-256) and preset: a run with another model
+or preset is refused unless ``overwrite`` (then every scan is fitted again).
 """
 
 from __future__ import annotations
@@ -32,9 +34,10 @@ from jsrte.fit.outputs import RESULT_NAME
 from jsrte.io import write_bytes_atomic
 
 SUMMARY_NAME = "summary.csv"
-COLUMNS = ("scan", "result", "status", "error", "fscore", "scale", "time_s")
+COLUMNS = ("scan", "result", "status", "error", "fscore", "scale", "time_s", "model", "model_sha256", "preset")
 """summary.csv: the scan's path, its result folder, ok/failed, the error, F@5% against the truth
-(virtual scans whose JSON names a findable mesh; else empty), the estimated scale, seconds."""
+(virtual scans whose JSON names a findable mesh; else empty), the estimated scale, seconds, and
+the model (name, SHA-256 of its file) and preset of the run."""
 LOCK_NAME = ".fit-many.lock"
 
 
@@ -61,7 +64,7 @@ class BatchReport:
 def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair", preset: str = "fast",
              workers: int | None = None, ray_address: str | None = None, up: np.ndarray | None = None,
              seed: int = 0, hypotheses: int | None = None, retries: int = 2,
-             progress: bool = True) -> BatchReport:
+             progress: bool = True, overwrite: bool = False) -> BatchReport:
     """Fit every scan of ``source`` (a folder, or a ``.txt`` list) into ``out``.
 
     Parameters
@@ -71,6 +74,8 @@ def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair"
         CPUs of the Ray instance started here; ignored for another Ray cluster
     ray_address : None (local process pool) or a Ray address (see ``run_ray``)
     retries : times a scan is sent again after its worker process died
+    overwrite : fit every scan again, replacing the results already in ``out`` (needed when they
+        were made with another model or preset)
     """
     from jsrte.presets import get_preset
 
@@ -88,14 +93,17 @@ def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair"
     workers = workers or os.cpu_count() or 1
     options = FitOptions(preset=preset, up=None if up is None else tuple(float(x) for x in up), seed=seed,
                          hypotheses=hypotheses)
+    identity = model_identity(model, preset)  # a bad model stops the run before anything is written
+    if not overwrite:
+        _check_same_identity(out, names, identity)
     blob = None
-    if any(not (out / name / RESULT_NAME).is_file() for name in names):
-        blob = load_blob(model)  # a bad model stops the run before anything is written
+    if overwrite or any(not (out / name / RESULT_NAME).is_file() for name in names):
+        blob = load_blob(model)
     with _locked(out):
-        rows = {i: row for i, (scan, name) in enumerate(zip(scans, names, strict=True))
-                if (row := _done_row(scan, out / name)) is not None}
+        rows = {} if overwrite else {i: row for i, (scan, name) in enumerate(zip(scans, names, strict=True))
+                                     if (row := _done_row(scan, out / name)) is not None}
         todo = [i for i in range(len(scans)) if i not in rows]
-        summary = _Summary(out / SUMMARY_NAME, rows)
+        summary = _Summary(out / SUMMARY_NAME, rows, identity)
         summary.write()
         counts = {"fitted": 0, "failed": 0}
         if todo:
@@ -141,6 +149,35 @@ def load_blob(model: str | Path) -> ModelBlob:
     name = loaded.meta.get("name") or str(model)
     return ModelBlob(name=str(name), path=str(path), sha256=file_hash(path), data=path.read_bytes(),
                      geometry={"canonical_height": geometry.height, "canonical_radius": geometry.radius})
+
+
+def model_identity(model: str | Path, preset: str) -> dict[str, str]:
+    """What makes results comparable: the model's name and file SHA-256, and the preset."""
+    from jsrte.model.checkpoint import file_hash, read_metadata
+    from jsrte.model.registry import resolve_model_path
+
+    path = resolve_model_path(model)
+    name = read_metadata(path).get("name") or str(path)
+    return {"model": str(name), "model_sha256": file_hash(path), "preset": preset}
+
+
+def _check_same_identity(out: Path, names: list[str], identity: dict[str, str]) -> None:
+    """JsrteError if ``out`` holds results of these scans made with another model or preset."""
+    others: dict[tuple[str, str, str], int] = {}
+    for name in names:
+        try:
+            result = json.loads((out / name / RESULT_NAME).read_text())
+            made = (str(result.get("model")), str(result.get("model_sha256")), str(result.get("preset")))
+        except (OSError, ValueError, AttributeError):
+            continue  # no result (or an unreadable one, fitted again)
+        if made[1:] != (identity["model_sha256"], identity["preset"]):
+            others[made] = others.get(made, 0) + 1
+    if others:
+        (model, sha, preset), count = next(iter(others.items()))
+        raise JsrteError(f"holds {sum(others.values())} result(s) made with model {model!r} ({sha[:12]}), preset "
+                         f"{preset!r}; this run uses model {identity['model']!r} "
+                         f"({identity['model_sha256'][:12]}), preset {identity['preset']!r}: pass --overwrite to "
+                         "fit every scan again, or give another --out", out)
 
 
 def make_job(index: int, name: str, scan: Path, options: FitOptions) -> ScanJob:
@@ -195,8 +232,8 @@ def _write_result(folder: Path, files: dict[str, bytes]) -> None:
 class _Summary:
     """summary.csv, rewritten atomically whenever a row is added."""
 
-    def __init__(self, path: Path, rows: dict[int, dict[str, Any]]) -> None:
-        self.path, self.rows = path, dict(rows)
+    def __init__(self, path: Path, rows: dict[int, dict[str, Any]], identity: dict[str, str]) -> None:
+        self.path, self.rows, self.identity = path, dict(rows), identity
 
     def add(self, index: int, row: dict[str, Any]) -> None:
         self.rows[index] = row
@@ -209,7 +246,7 @@ class _Summary:
         text = io.StringIO()
         writer = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
         writer.writeheader()
-        writer.writerows(self.ordered())
+        writer.writerows(row | self.identity for row in self.ordered())
         write_bytes_atomic(self.path, text.getvalue().encode())
 
 

@@ -120,9 +120,14 @@ def limit_threads() -> None:
     torch.set_num_threads(1)
 
 
-def init_local_worker(blob: ModelBlob) -> None:
-    """Process-pool initializer: keep the model for every job of this process."""
+def init_local_worker(blob: ModelBlob, parent_pid: int | None = None) -> None:
+    """Process-pool initializer: end with the driver ``parent_pid`` (no orphans after a kill), and
+    keep the model for every job of this process."""
     global _LOCAL_BLOB
+    if parent_pid is not None:
+        from jsrte.processes import die_with_parent
+
+        die_with_parent(parent_pid)
     limit_threads()
     _LOCAL_BLOB = blob
 

@@ -8,7 +8,7 @@ import typer
 
 from jsrte.baselines import BASELINE_NAMES
 from jsrte.cli import app
-from jsrte.cli.common import set_threads
+from jsrte.cli.common import check_out_folder, check_threads, set_threads
 from jsrte.cli.fit_cmd import parse_vector
 from jsrte.errors import JsrteError
 
@@ -44,8 +44,8 @@ def baseline_command(
         raise JsrteError(f"unknown baseline {name!r} (known: {', '.join(BASELINE_NAMES)})")
     if not scan.exists():
         raise JsrteError("no such file", scan)
-    if (out / RESULT_NAME).exists() and not overwrite:
-        raise JsrteError(f"already holds a result ({RESULT_NAME}); pass --overwrite to replace it", out)
+    check_threads(threads)
+    check_out_folder(out, marker=RESULT_NAME, overwrite=overwrite)
     set_threads(threads)
     query = load_baseline_query(scan, rng=np.random.default_rng(seed), up=parse_vector(up))
     loaded = resolve_model(model)

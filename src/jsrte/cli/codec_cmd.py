@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import set_threads
+from jsrte.cli.common import check_out_file, check_threads, set_threads
 from jsrte.errors import JsrteError
 from jsrte.presets import DEFAULT_PRESET, PRESETS
 
@@ -15,10 +15,7 @@ MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb")
 
 
 def _refuse_existing(out: Path, overwrite: bool) -> None:
-    if out.is_dir():
-        raise JsrteError("is a folder; give a file name", out)
-    if out.exists() and not overwrite:
-        raise JsrteError("already exists; pass --overwrite to replace it", out)
+    check_out_file(out, overwrite=overwrite)
 
 
 @app.command("encode")
@@ -44,6 +41,7 @@ def encode_command(
     if latent not in ENCODINGS:
         raise JsrteError(f"unknown --latent {latent!r}; known: {', '.join(ENCODINGS)}")
     check_preset(preset)
+    check_threads(threads)
     if not source.exists():
         raise JsrteError("no such file or folder", source)
     _refuse_existing(out, overwrite)
@@ -82,6 +80,7 @@ def decode_command(
         raise JsrteError(f"unsupported mesh format {out.suffix!r}; use one of {known}", out)
     if not 8 <= resolution <= 1024:
         raise JsrteError(f"--resolution must be in 8..1024, got {resolution}")
+    check_threads(threads)
     _refuse_existing(out, overwrite)
     code = read_code(code_file)
     loaded = model_for_code(code, model=model, source=code_file)

@@ -8,8 +8,8 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import set_threads
-from jsrte.errors import JsrteError
+from jsrte.cli.common import check_out_folder, check_threads, set_threads
+from jsrte.cli.fit_cmd import check_preset
 
 
 @app.command("demo")
@@ -19,6 +19,7 @@ def demo(
     preset: str = typer.Option("fast", help="Fit settings (fast or paper)."),
     model: str = typer.Option("chair", help="Shipped model name or model file."),
     overwrite: bool = typer.Option(True, help="Replace an earlier demo's files in --out."),
+    threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
 ) -> None:
     """Scan a held-out generated chair in a random pose, fit it, and score the result."""
     import numpy as np
@@ -31,9 +32,10 @@ def demo(
     from jsrte.scans.scanner import scan_mesh, write_scan
     from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 
-    set_threads(None)
-    if (out / RESULT_NAME).exists() and not overwrite:
-        raise JsrteError("already holds a demo result; pass --overwrite", out)
+    check_preset(preset)
+    check_threads(threads)
+    check_out_folder(out, marker=RESULT_NAME, overwrite=overwrite)
+    set_threads(threads)
     category = "chair"
     shape = generate_shape(category, shape_seed(EVAL_SET_SEED, seed))
     typer.echo(f"held-out {category} #{seed} of the evaluation set (style {shape.style}); "

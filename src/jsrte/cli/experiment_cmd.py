@@ -44,13 +44,13 @@ def load_models(categories: tuple[str, ...], model: str | None) -> dict:
 
 
 def _check_out(out: Path, marker: str, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise JsrteError("is a file; give a folder", out)
-    if (out / marker).exists() and not overwrite:
-        raise JsrteError(f"already holds a result ({marker}); pass --overwrite to replace it", out)
+    from jsrte.cli.common import check_out_folder
+
+    check_out_folder(out, marker=marker, overwrite=overwrite)
 
 
-@experiment_app.command("synthetic")
+@experiment_app.command("synthetic", short_help="Paper section 4.1 (Fig. 2): fits of held-out shapes under "
+                                                "random transforms.")
 def synthetic_command(
     out: Path = typer.Option(..., "--out", help="Output folder (runs.csv, summary.md/.csv, box plots)."),
     categories: str = typer.Option("chair,table,sofa,bed", help="Classes, comma-separated (those without a "

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from jsrte.cli.common import set_threads
+from jsrte.cli.common import check_out_folder, check_threads, set_threads
 from jsrte.cli.experiment_cmd import experiment_app, split_names
 from jsrte.errors import JsrteError
 
@@ -40,6 +40,8 @@ def scans_command(
         raise JsrteError(f"unknown scale {scale!r} (known: {', '.join(SCALES)})")
     if jobs < 1:
         raise JsrteError(f"--jobs must be positive, got {jobs}")
+    check_threads(threads)
+    check_out_folder(out, marker="table.md", overwrite=overwrite)
     loaded = resolve_model(model or category)
     set_threads(threads)
     with output_dir(out, overwrite=overwrite, marker="table.md") as folder_out:

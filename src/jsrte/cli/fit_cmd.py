@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import resolve_device, set_threads
+from jsrte.cli.common import check_out_file, check_out_folder, check_threads, resolve_device, set_threads
 from jsrte.errors import JsrteError
 from jsrte.presets import DEFAULT_PRESET, PRESETS
 
@@ -49,6 +49,16 @@ def _three_numbers(text: str, name: str) -> np.ndarray:
     return v
 
 
+UNITS_HELP = ("Refuse a scan whose object is implausibly large or small for metres (over 10 m or under 2 cm "
+              "across: millimetres?); --no-units-check fits it anyway.")
+
+
+def check_hypotheses(hypotheses: int | None) -> None:
+    """A one-line error unless ``hypotheses`` is None (the default grid) or positive."""
+    if hypotheses is not None and hypotheses < 1:
+        raise JsrteError(f"--hypotheses must be positive, got {hypotheses}")
+
+
 def check_preset(preset: str) -> str:
     if preset not in PRESETS:
         raise JsrteError(f"unknown preset {preset!r}; known: {', '.join(PRESETS)}")
@@ -79,6 +89,7 @@ def fit_command(
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
+    units_check: bool = typer.Option(True, "--units-check/--no-units-check", help=UNITS_HELP),
 ) -> None:
     """Fit the model to a scan: latent code + similarity transform (the paper's JSRTE)."""
     from jsrte.fit import fit
@@ -86,16 +97,17 @@ def fit_command(
     from jsrte.io import output_dir
 
     check_preset(preset)
+    check_threads(threads)
+    check_hypotheses(hypotheses)
     torch_device = resolve_device(device)
     if not scan.exists():
         raise JsrteError("no such file", scan)
-    if (out / RESULT_NAME).exists() and not overwrite:
-        raise JsrteError(f"already holds a result ({RESULT_NAME}); pass --overwrite to replace it", out)
+    check_out_folder(out, marker=RESULT_NAME, overwrite=overwrite)
     viewpoints = parse_points(viewpoint)
     set_threads(threads)
     result = fit(scan, model=model, preset=preset, up=parse_vector(up), viewpoints=viewpoints,
                  line_of_sight=line_of_sight, free_axis=free_axis, hypotheses=hypotheses, seed=seed,
-                 progress=progress, device=torch_device)
+                 progress=progress, device=torch_device, units_check=units_check)
     with output_dir(out, overwrite=overwrite, marker=RESULT_NAME) as folder:
         query_points = _surface_points(scan, result)
         write_fit_outputs(result, folder, query_points=query_points, up=result.info.get("up"),
@@ -132,6 +144,7 @@ def prepare_command(
         help=f"Line-of-sight free-space samples (default: as the {DEFAULT_PRESET} preset)."),
     seed: int = typer.Option(0, help="Random seed."),
     overwrite: bool = typer.Option(False, help="Replace an existing query file."),
+    units_check: bool = typer.Option(True, "--units-check/--no-units-check", help=UNITS_HELP),
 ) -> None:
     """Preprocess a scan once into the fit's SDF query (floor, outliers, normals, samples): fit it
     later or on another machine (a GPU box without Open3D) with `jsrte fit QUERY.npz`."""
@@ -140,13 +153,10 @@ def prepare_command(
     from jsrte.fit.query import load_query, save_query
     from jsrte.presets import get_preset, with_line_of_sight
 
-    if out.suffix.lower() != ".npz":
-        raise JsrteError("the query file must end in .npz", out)
-    if out.exists() and not overwrite:
-        raise JsrteError("already exists; pass --overwrite to replace it", out)
+    check_out_file(out, overwrite=overwrite, suffixes=(".npz",))
     settings = with_line_of_sight(get_preset(DEFAULT_PRESET).scan_sdf, line_of_sight)
     query = load_query(scan, rng=np.random.default_rng(seed), up=parse_vector(up), viewpoints=parse_points(viewpoint),
-                       scan_settings=settings)
+                       scan_settings=settings, units_check=units_check)
     query.info["source"] = scan.name
     save_query(query, out)
     typer.echo(f"wrote {out}: {len(query.sdf)} SDF samples, {len(query.surface)} surface points"

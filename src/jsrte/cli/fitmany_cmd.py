@@ -7,7 +7,9 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.fit_cmd import check_preset, parse_vector
+from jsrte.cli.common import check_out_folder, check_threads
+from jsrte.cli.fit_cmd import check_hypotheses, check_preset, parse_vector
+from jsrte.errors import JsrteError
 from jsrte.presets import DEFAULT_PRESET, PRESETS
 
 
@@ -29,6 +31,8 @@ def fit_many_command(
     progress: bool = typer.Option(True, help="Show a progress bar."),
     html_report: bool = typer.Option(True, "--report/--no-report",
                                      help="Also write report.html beside summary.csv (as jsrte report)."),
+    overwrite: bool = typer.Option(False, help="Fit every scan again, replacing the results in --out (needed "
+                                               "when they were made with another model or preset)."),
 ) -> None:
     """Fit every scan; skip those already done in --out; a failed scan is recorded and the rest go on.
 
@@ -37,9 +41,14 @@ def fit_many_command(
     from jsrte.batch import fit_many
 
     check_preset(preset)
+    check_threads(workers, "--workers")
+    check_hypotheses(hypotheses)
+    if retries < 0:
+        raise JsrteError(f"--retries must be 0 or more, got {retries}")
+    check_out_folder(out)
     report = fit_many(source, out=out, model=model, preset=preset, workers=workers or None,
                       ray_address=ray, up=parse_vector(up), seed=seed, hypotheses=hypotheses, retries=retries,
-                      progress=progress)
+                      progress=progress, overwrite=overwrite)
     typer.echo(f"{len(report.rows)} scans: {report.fitted} fitted now, {report.skipped} done before, "
                f"{report.failed} failed; wrote {report.summary}")
     if html_report:

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import resolve_device, set_threads
+from jsrte.cli.common import check_out_file, check_out_folder, check_threads, resolve_device, set_threads
 from jsrte.errors import JsrteError
 
 
@@ -18,7 +18,9 @@ def reconstruct(
     model: str = typer.Option("chair", help="Shipped model name or model file."),
     resolution: int = typer.Option(128, help="Marching-cubes resolution."),
     seed: int = typer.Option(0, help="Random seed."),
+    threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
+    progress: bool = typer.Option(True, help="Show a progress bar."),
 ) -> None:
     """DeepSDF latent-only reconstruction; the mesh is written in the input's own frame."""
     import numpy as np
@@ -29,12 +31,14 @@ def reconstruct(
     from jsrte.model.reconstruct import reconstruct_mesh
     from jsrte.model.registry import resolve_model
 
-    set_threads(None)
+    if not 8 <= resolution <= 1024:
+        raise JsrteError(f"--resolution must be in 8..1024, got {resolution}")
+    check_out_folder(out, marker="reconstruct.json", overwrite=overwrite)
+    set_threads(threads)
     source = load_mesh(mesh)
     loaded = resolve_model(model)
-    if (out / "reconstruct.json").exists() and not overwrite:
-        raise JsrteError("already holds a result (reconstruct.json); pass --overwrite to replace it", out)
-    result, latent = reconstruct_mesh(loaded, source, rng=np.random.default_rng(seed), resolution=resolution)
+    result, latent = reconstruct_mesh(loaded, source, rng=np.random.default_rng(seed), resolution=resolution,
+                                      progress=progress)
     if result is None:
         raise JsrteError("the reconstructed surface is empty (the model cannot represent this shape)", mesh)
     score = fscore(result, source, rng=np.random.default_rng(seed))
@@ -66,10 +70,9 @@ def evaluate_model_command(
     from jsrte.model.registry import resolve_model
     from jsrte.shapes import EVAL_SET_SEED, generate_set
 
-    if out is not None and out.is_dir():
-        raise JsrteError("is a folder; give a JSON file name", out)
-    if out is not None and out.exists() and not overwrite:
-        raise JsrteError("already exists; pass --overwrite to replace it", out)
+    if out is not None:
+        check_out_file(out, overwrite=overwrite)
+    check_threads(threads)
     set_threads(threads)
     loaded = resolve_model(model).to(resolve_device(device))
     data = loaded.meta.get("data", {})

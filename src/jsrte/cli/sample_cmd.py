@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
+from jsrte.cli.common import check_out_file, check_out_folder, check_threads
 from jsrte.errors import JsrteError
 from jsrte.presets import SdfSampling
 
@@ -25,10 +26,9 @@ def sample(
     from jsrte.geometry.mesh import load_mesh
     from jsrte.sdf.mesh_sdf import sample_sdf
 
-    if out.exists() and not overwrite:
-        raise JsrteError("already exists; pass --overwrite to replace it", out)
     if n < 1:
         raise JsrteError(f"--n must be positive, got {n}")
+    check_out_file(out, overwrite=overwrite, suffixes=(".npz",))
     samples = sample_sdf(load_mesh(mesh), rng=np.random.default_rng(seed), settings=SdfSampling(n_points=n))
     samples.save(out)
     inside = float((samples.sdf < 0).mean())
@@ -49,6 +49,8 @@ def dataset(
 
     if not folder.is_dir():
         raise JsrteError("no such folder", folder)
+    check_threads(workers, "--workers")
+    check_out_folder(out)
     meshes = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MESH_SUFFIXES)
     if not meshes:
         raise JsrteError("holds no mesh files", folder)

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
+from jsrte.cli.common import check_out_file
 from jsrte.errors import JsrteError
 
 
@@ -44,8 +45,7 @@ def scan(
 
     if out.suffix.lower() != ".ply":
         raise JsrteError("the scan is written as PLY: give --out a .ply name", out)
-    if out.exists() and not overwrite:
-        raise JsrteError("already exists; pass --overwrite to replace it", out)
+    check_out_file(out, overwrite=overwrite)
     settings = ScannerSettings(
         target_height_m=_range(height_range, "height-range"), views=views, arc_deg=arc,
         noise_scale=noise, width=width, height=height, floor=not no_floor,

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
+from jsrte.cli.common import check_out_folder
 from jsrte.errors import JsrteError
 
 
@@ -35,8 +36,7 @@ def shapes(
         raise JsrteError(f"--n must be at least 1, got {n}")
     if seed < 0:
         raise JsrteError(f"--seed must be non-negative, got {seed}")
-    if out.exists() and not out.is_dir():
-        raise JsrteError("is a file, not a folder", out)
+    check_out_folder(out)
     existing = [p for p in out.iterdir() if p.suffix.lower() in MESH_SUFFIXES] if out.is_dir() else []
     if existing and not overwrite:
         raise JsrteError(f"already holds {len(existing)} mesh file(s); pass --overwrite to replace them",

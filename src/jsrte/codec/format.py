@@ -87,6 +87,12 @@ FIXED_BYTES = _PREFIX.size + HASH_BYTES + _TRANSFORM.size + _CRC.size  # 82
 
 ROTATION_TOLERANCE = 1e-5
 """Largest |RᵀR - I| entry and |det R - 1| accepted when reading (fp32 rounding is ~1e-7)."""
+SCALE_RANGE = (1e-5, 1e5)
+"""Scales accepted (scan units per canonical unit: an object from 10 µm to 100 km across in metres)."""
+MAX_TRANSLATION = 1e6
+"""Largest |t| entry accepted (scan units)."""
+MAX_LATENT_ABS = 1e5
+"""Largest |z| entry accepted (trained codes are of order 0.01 to 1)."""
 
 
 @dataclass(eq=False)
@@ -162,6 +168,8 @@ def encode(code: ShapeCode, *, latent_format: LatentFormat = "fp32") -> bytes:
         raise JsrteError(f"latent size {latent.size} is outside 1..{MAX_LATENT_SIZE}")
     if not np.all(np.isfinite(latent)):
         raise JsrteError("the latent code holds non-finite values")
+    if np.abs(latent).max() > MAX_LATENT_ABS:
+        raise JsrteError(f"a latent value ({np.abs(latent).max():.3g}) exceeds {MAX_LATENT_ABS:g}")
     encoding = ENCODINGS[latent_format]
     head = _PREFIX.pack(MAGIC, VERSION, KNOWN_FLAGS, encoding, latent.size, len(name))
     body = head + name + code.model_hash + _pack_transform(code.transform) + _pack_latent(latent, encoding)
@@ -177,7 +185,21 @@ def _pack_transform(transform: Sim3) -> bytes:
         raise JsrteError(f"the transform does not fit in fp32 with a positive scale (s = {transform.s})")
     if not is_rotation(stored[1:10].astype(np.float64).reshape(3, 3)):
         raise JsrteError("the transform's R is not a rotation matrix")
+    problem = transform_range_problem(float(stored[0]), stored[10:])
+    if problem:
+        raise JsrteError(f"the transform is out of range: {problem}")
     return _TRANSFORM.pack(*stored.tolist())
+
+
+def transform_range_problem(scale: float, translation: np.ndarray) -> str | None:
+    """What is absurd about a code's scale or translation (None if both are in range)."""
+    lo, hi = SCALE_RANGE
+    if not lo <= scale <= hi:
+        return f"scale {scale:.3g} is outside {lo:g}..{hi:g}"
+    largest = float(np.abs(translation).max())
+    if largest > MAX_TRANSLATION:
+        return f"translation {largest:.3g} exceeds {MAX_TRANSLATION:g}"
+    return None
 
 
 def is_rotation(r: np.ndarray) -> bool:
@@ -298,6 +320,9 @@ def _unpack_transform(data: bytes, at: int, fail) -> Sim3:  # noqa: ANN001
         raise fail("corrupt shape code: the transform is not finite with a positive scale")
     if not is_rotation(r):
         raise fail("corrupt shape code: the stored rotation is not a rotation matrix")
+    problem = transform_range_problem(float(s), t)
+    if problem:
+        raise fail(f"corrupt shape code: {problem}")
     return Sim3(float(s), r, t)
 
 
@@ -314,4 +339,6 @@ def _unpack_latent(data: bytes, at: int, encoding: int, dim: int, fail) -> np.nd
         latent = dequantize_int8(scale, offset, q)
     if not np.all(np.isfinite(latent)):
         raise fail("corrupt shape code: the latent code holds non-finite values")
+    if np.abs(latent).max() > MAX_LATENT_ABS:
+        raise fail(f"corrupt shape code: a latent value ({np.abs(latent).max():.3g}) exceeds {MAX_LATENT_ABS:g}")
     return latent

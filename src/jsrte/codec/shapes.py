@@ -23,6 +23,8 @@ from jsrte.model.checkpoint import DeepSdfModel, file_hash, read_metadata
 def read_code(path: str | Path) -> ShapeCode:
     """Read and check a ``.jsrte`` file (``JsrteError`` naming it if missing or invalid)."""
     path = Path(path)
+    if path.is_dir():
+        raise JsrteError("is a folder; give a shape code file (.jsrte)", path)
     if not path.is_file():
         raise JsrteError("no such shape code file", path)
     return decode(path.read_bytes(), source=str(path))

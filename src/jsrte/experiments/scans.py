@@ -199,8 +199,13 @@ class _CaseContext:
 _WORKER_CONTEXT: _CaseContext | None = None
 
 
-def _init_worker(context: _CaseContext, threads: int) -> None:
+def _init_worker(context: _CaseContext, threads: int, parent_pid: int | None = None) -> None:
     import torch
+
+    if parent_pid is not None:  # no orphan keeps running after the experiment is killed
+        from jsrte.processes import die_with_parent
+
+        die_with_parent(parent_pid)
 
     global _WORKER_CONTEXT
     _WORKER_CONTEXT = context
@@ -220,7 +225,7 @@ def _in_workers(cases: list[ScanCase], context: _CaseContext, jobs: int, threads
 
     per_job = max(1, (threads or os.cpu_count() or 1) // jobs)
     with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_init_worker, initargs=(context, per_job)) as pool:
+                             initializer=_init_worker, initargs=(context, per_job, os.getpid())) as pool:
         yield from zip(cases, pool.map(_run_in_worker, cases), strict=True)
 
 

@@ -18,7 +18,7 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
         up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool | None = None,
         free_axis: bool = False,
         hypotheses: int | None = None, seed: int = 0, progress: bool = False,
-        device: str | torch.device | None = None) -> FitResult:
+        device: str | torch.device | None = None, units_check: bool = True) -> FitResult:
     """Find the shape and the similarity transform that explain ``query``.
 
     Parameters
@@ -39,6 +39,8 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     hypotheses : number of θ starts (default: every 30°, 12)
     device : where the decoder runs ("cpu", "cuda", ...); a loaded ``model`` is moved there
         (None: a loaded model stays where it is, a named one runs on the CPU)
+    units_check : refuse a scan whose object is implausibly large or small for metres (default);
+        False skips that check
     """
     from jsrte.fit.query import load_query
     from jsrte.model.decoder import decoder_device
@@ -56,7 +58,8 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
             loaded.to(device)
         rng = np.random.default_rng(seed)
         sdf_query = query if isinstance(query, SdfQuery) else load_query(
-            query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf)
+            query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf,
+            units_check=units_check)
     result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=hypotheses, seed=seed, progress=progress)
     result.info.update(preset=settings.name, model=loaded.name, model_sha256=loaded.meta.get("sha256"),
                        query=sdf_query.info, device=str(decoder_device(loaded.decoder)),

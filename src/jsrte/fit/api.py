@@ -7,6 +7,7 @@ import time
 import numpy as np
 import torch
 
+from jsrte.errors import JsrteError
 from jsrte.fit.floor import with_below_floor_samples
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
 from jsrte.fit.optimize import Optimized, SdfQuery, loss_clamp, optimize
@@ -88,6 +89,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         result = minimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
                           prior=latent_prior(model, settings), progress=progress)
     t_opt = time.perf_counter() - started
+    _check_finite(result)
     reports = _reports(result, inits)
     winner, criterion = _select(model, query, result, reports, settings, seed)
     t_sel = time.perf_counter() - started - t_opt
@@ -107,6 +109,21 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
               "failed_hypotheses": {str(i): why for i, why in sorted(result.failed.items())},
               "winner_hypothesis": int(result.survivors[winner])},
     )
+
+
+def _check_finite(result: Optimized) -> None:
+    """JsrteError if a surviving hypothesis ended with a non-finite loss, scale, pose or code."""
+    batch = result.batch
+    with torch.no_grad():
+        values = [torch.as_tensor(np.asarray(result.losses, np.float64)).reshape(len(result.losses), -1)]
+        values += [v.detach().cpu().reshape(len(result.losses), -1).to(torch.float64)
+                   for v in (batch.scale, batch.psi, batch.rho, batch.theta, batch.translation, batch.latent)]
+        finite = torch.cat(values, dim=1).isfinite().all(dim=1)
+        scale_positive = (batch.scale.detach().cpu() > 0).reshape(-1)
+    bad = (~(finite & scale_positive)).nonzero().reshape(-1).tolist()
+    if bad:
+        raise JsrteError(f"the fit diverged: hypothesis {int(result.survivors[bad[0]])} ended with a non-finite "
+                         "loss, scale or pose (does the model give NaN or infinite values?)")
 
 
 def _reports(result: Optimized, inits: list[Init]) -> list[HypothesisReport]:

@@ -43,13 +43,15 @@ def query_from_mesh(mesh: trimesh.Trimesh, *, rng: np.random.Generator, up: np.n
 
 
 def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
-                    viewpoints: np.ndarray | None = None, settings: ScanSdf = ScanSdf()) -> SdfQuery:
+                    viewpoints: np.ndarray | None = None, settings: ScanSdf = ScanSdf(),
+                    units_check: bool = True) -> SdfQuery:
     """A scan (point cloud or scan mesh, metres, floor optional when ``up`` is given): the
     paper's preprocessing, then SDF samples ±δ along the normals plus freespace samples, plus
     free space on the lines of sight when the sensor's ``viewpoints`` (k, 3) are known (given,
-    or the ``cameras`` of the scan's JSON sidecar)."""
+    or the ``cameras`` of the scan's JSON sidecar). ``units_check`` False skips the check that
+    the object's size is plausible in metres."""
     from jsrte.scans.io import load_scan, read_scan_info
-    from jsrte.scans.preprocess import prepare_scan
+    from jsrte.scans.preprocess import PrepareSettings, prepare_scan
     from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples
 
     with stage("load"):
@@ -57,7 +59,8 @@ def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarra
         info = read_scan_info(path) if Path(path).suffix.lower() == ".ply" else None
     if viewpoints is None and info is not None and len(info.cameras):
         viewpoints = info.cameras
-    prepared = prepare_scan(cloud, rng=rng, up=up, viewpoints=viewpoints)
+    prepared = prepare_scan(cloud, rng=rng, up=up, viewpoints=viewpoints,
+                            settings=PrepareSettings(units_check=units_check))
     with stage("query samples"):
         points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
         n_rays = 0
@@ -130,13 +133,16 @@ def read_query_file(path: str | Path) -> SdfQuery:
 
 
 def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
-               viewpoints: np.ndarray | None = None, scan_settings: ScanSdf = ScanSdf()) -> SdfQuery:
+               viewpoints: np.ndarray | None = None, scan_settings: ScanSdf = ScanSdf(),
+               units_check: bool = True) -> SdfQuery:
     """Dispatch on the file: ``.npz`` query files (``jsrte prepare``; ``up`` overrides theirs) or
     SDF samples (``jsrte sample``); OBJ/OFF/STL/GLB complete meshes (up: ``up``
     or +y); PLY/PCD/XYZ/PTS scans (point clouds or scan meshes, floor plane gives up)."""
     path = Path(path)
     if not path.exists():
         raise JsrteError("no such file", path)
+    if path.is_dir():
+        raise JsrteError("is a folder; give a scan, mesh or .npz file (fit-many fits a folder)", path)
     suffix = path.suffix.lower()
     if suffix == ".npz" and is_query_file(path):
         query = read_query_file(path)
@@ -148,6 +154,7 @@ def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | N
     if suffix in MESH_QUERY_SUFFIXES:
         return query_from_mesh(load_mesh(path), rng=rng, up=up)
     if suffix in SCAN_SUFFIXES:
-        return query_from_scan(path, rng=rng, up=up, viewpoints=viewpoints, settings=scan_settings)
+        return query_from_scan(path, rng=rng, up=up, viewpoints=viewpoints, settings=scan_settings,
+                               units_check=units_check)
     known = ", ".join((".npz",) + MESH_QUERY_SUFFIXES + SCAN_SUFFIXES)
     raise JsrteError(f"unsupported input {path.suffix!r} (use {known})", path)

@@ -22,12 +22,18 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
     non-finite vertices or zero surface area.
     """
     path = Path(path)
+    if path.is_dir():
+        raise JsrteError("is a folder, not a mesh file", path)
     if not path.is_file():
         raise JsrteError("no such file", path)
     if path.stat().st_size == 0:
         raise JsrteError("file is empty", path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise JsrteError(f"unsupported mesh format {path.suffix!r} (use {', '.join(MESH_SUFFIXES)})", path)
+    if path.suffix.lower() == ".ply":
+        from jsrte.scans.io import check_ply_complete
+
+        check_ply_complete(path)
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for broken files
@@ -38,14 +44,26 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
 
 
 def validate_mesh(mesh: trimesh.Trimesh, path: str | Path | None = None) -> trimesh.Trimesh:
-    """Check a mesh is usable (finite vertices, faces, non-zero area); returns it."""
+    """Check a mesh is usable (finite vertices, faces on existing vertices, non-zero area); returns it."""
     if len(mesh.faces) == 0:
         raise JsrteError("mesh holds no triangles", path)
+    check_face_indices(mesh, path)
     if not np.all(np.isfinite(mesh.vertices)):
         raise JsrteError("mesh has NaN or infinite vertex coordinates", path)
     if not mesh.area > 0:
         raise JsrteError("mesh has zero surface area", path)
     return mesh
+
+
+def check_face_indices(mesh: trimesh.Trimesh, path: str | Path | None = None) -> None:
+    """JsrteError unless the vertices are (n, 3), the faces (m, 3), and every face refers to an
+    existing vertex (a damaged file can say otherwise)."""
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise JsrteError(f"vertices {vertices.shape} and faces {faces.shape} are not 3D triangles", path)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(mesh.vertices)):
+        raise JsrteError(f"faces refer to vertex {int(faces.max())}, but there are {len(mesh.vertices)} vertices",
+                         path)
 
 
 @dataclass(frozen=True)

@@ -100,12 +100,34 @@ def model_metadata(model: DeepSdfModel) -> dict[str, Any]:
 
 
 def save_model(model: DeepSdfModel, path: str | Path) -> None:
-    """Write ``path`` (.safetensors) and ``path.json`` atomically."""
+    """Write ``path`` (.safetensors) and ``path.json`` atomically; JsrteError (nothing written) if
+    a weight or code is NaN or infinite."""
     path = Path(path)
     meta = model_metadata(model)
-    write_with(path, lambda tmp: save_file(tensors_of(model), str(tmp), metadata={"jsrte": json.dumps(meta)}))
+    tensors = tensors_of(model)
+    bad = non_finite_tensors(tensors)
+    if bad:
+        raise JsrteError(f"refusing to write a model with NaN or infinite values (in {', '.join(bad[:3])})", path)
+    write_with(path, lambda tmp: save_file(tensors, str(tmp), metadata={"jsrte": json.dumps(meta)}))
     meta["sha256"] = file_hash(path)
     write_json_atomic(path.with_suffix(".json"), meta)
+
+
+def non_finite_tensors(tensors: dict[str, torch.Tensor]) -> list[str]:
+    """Names of the floating-point tensors holding NaN or infinite values."""
+    return [name for name, t in tensors.items() if t.is_floating_point() and not bool(torch.isfinite(t).all())]
+
+
+def check_recorded_hash(path: Path, sha256: str) -> None:
+    """JsrteError if the ``.json`` beside the model file records another SHA-256 than ``sha256``."""
+    record = path.with_suffix(".json")
+    try:
+        recorded = json.loads(record.read_text()).get("sha256")
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        return  # no readable description beside it: nothing to compare with
+    if isinstance(recorded, str) and recorded != sha256:
+        raise JsrteError(f"the file's SHA-256 ({sha256[:16]}…) differs from the one {record.name} records "
+                         f"({recorded[:16]}…): the weights were altered or damaged", path)
 
 
 def file_hash(path: str | Path) -> str:
@@ -161,7 +183,12 @@ def load_model(path: str | Path, *, expect: DecoderConfig | None = None) -> Deep
     codes = tensors[CODES_KEY]
     if codes.ndim != 2 or codes.shape[1] != config.latent_size:
         raise JsrteError(f"latent codes {tuple(codes.shape)} do not match latent size {config.latent_size}", path)
-    meta.setdefault("sha256", file_hash(path))
+    bad = non_finite_tensors(tensors)
+    if bad:
+        raise JsrteError(f"holds NaN or infinite values (in {', '.join(bad[:3])}): not a usable model", path)
+    sha256 = file_hash(path)
+    check_recorded_hash(path, sha256)
+    meta.setdefault("sha256", sha256)
     meta["path"] = str(path)
     decoder.eval()
     return DeepSdfModel(decoder=decoder, codes=codes, meta=meta)

@@ -55,6 +55,8 @@ ARCHITECTURES: dict[str, DecoderConfig] = {
 
 
 STATE_NAME = "train_state.safetensors"
+PREVIOUS_STATE_NAME = "train_state.previous.safetensors"
+"""The checkpoint before the last one: ``--resume`` falls back to it if the last one is unreadable."""
 MODEL_NAME = "model.safetensors"
 LOG_NAME = "train_log.csv"
 

@@ -13,7 +13,7 @@ from jsrte.sdf.mesh_sdf import SdfSamples
 
 def procedural_training_data(category: str, n_shapes: int, work_dir: Path, *,
                              settings: SdfSampling = SdfSampling(), set_seed: int | None = None,
-                             workers: int | None = None) -> TrainingData:
+                             workers: int | None = None, progress: bool = True) -> TrainingData:
     """Generate ``n_shapes`` shapes of ``category`` (the training seed set) and sample their SDF.
 
     Meshes go to ``work_dir/meshes``, samples to ``work_dir/samples`` (cached by mesh hash).
@@ -26,12 +26,12 @@ def procedural_training_data(category: str, n_shapes: int, work_dir: Path, *,
     meshes = write_set(category, n_shapes, set_seed, work_dir / "meshes")
     summary = {"source": "procedural", "category": category, "n_shapes": n_shapes,
                "set_seed": set_seed, "samples_per_shape": settings.n_points}
-    return _sampled(meshes, work_dir / "samples", settings, summary, workers)
+    return _sampled(meshes, work_dir / "samples", settings, summary, workers, progress)
 
 
 def folder_training_data(folder: Path, work_dir: Path, *, category: str | None = None,
                          settings: SdfSampling = SdfSampling(), limit: int | None = None,
-                         workers: int | None = None) -> TrainingData:
+                         workers: int | None = None, progress: bool = True) -> TrainingData:
     """The meshes of ``folder`` (a ShapeNetCore v2 root/synset when ``category`` is given,
     else any folder of meshes), sampled into ``work_dir/samples``."""
     from jsrte.shapes.shapenet import iter_mesh_folder, iter_shapenet
@@ -48,7 +48,7 @@ def folder_training_data(folder: Path, work_dir: Path, *, category: str | None =
         raise JsrteError("holds no meshes to train on", folder)
     summary = {"source": "folder", "folder": str(folder), "category": category,
                "n_shapes": len(meshes), "samples_per_shape": settings.n_points}
-    return _sampled(meshes, work_dir / "samples", settings, summary, workers)
+    return _sampled(meshes, work_dir / "samples", settings, summary, workers, progress)
 
 
 def _looks_like_shapenet(folder: Path) -> bool:
@@ -57,7 +57,16 @@ def _looks_like_shapenet(folder: Path) -> bool:
 
 
 def _sampled(meshes: list[Path], sample_dir: Path, settings: SdfSampling, summary: dict,
-             workers: int | None) -> TrainingData:
-    paths = build_sdf_dataset(meshes, sample_dir, settings=settings, workers=workers)
+             workers: int | None, progress: bool = True) -> TrainingData:
+    paths = build_sdf_dataset(meshes, sample_dir, settings=settings, workers=workers, progress=progress)
     summary["meshes"] = [Path(m).name for m in meshes]
-    return TrainingData.from_samples([SdfSamples.load(p) for p in paths], summary)
+    return TrainingData.from_samples([_cached_samples(p) for p in paths], summary)
+
+
+def _cached_samples(path: Path) -> SdfSamples:
+    """A sample file of the cache; a damaged one is named with what to do about it."""
+    try:
+        return SdfSamples.load(path)
+    except JsrteError as exc:
+        raise JsrteError(f"{exc} (a cached sample file: delete it and run again to sample that mesh anew)") \
+            from None

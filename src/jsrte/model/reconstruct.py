@@ -36,10 +36,11 @@ tenth of Adam's decoder evaluations with the same held-out F@5% (docs/solver.md)
 def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator,
                        settings: FitSettings = LATENT_ONLY,
                        sampling: SdfSampling = SdfSampling(n_points=50_000),
-                       report: dict | None = None) -> tuple[np.ndarray, Normalization]:
+                       progress: bool = False, report: dict | None = None) -> tuple[np.ndarray, Normalization]:
     """The latent code (d,) of ``mesh`` (canonical orientation), and its normalization.
 
-    ``report``, if given, receives the solver's iterations, decoder evaluations and seconds."""
+    ``progress``: a bar over the solver's iterations; ``report``, if given, receives the solver's
+    iterations, decoder evaluations and seconds."""
     norm = unit_sphere_normalization(mesh)
     samples = sample_sdf(mesh, rng=rng, settings=sampling, normalization=norm)
     query = SdfQuery(samples.points.astype(np.float64), samples.sdf.astype(np.float64),
@@ -48,7 +49,7 @@ def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.ra
                 latent=model.mean_code().numpy() * 0.0)
     fixed = frozenset(PARAMETER_NAMES) - {"latent"}
     out = minimize(model.decoder, query, [init], settings, fixed=fixed, prior=None,
-                   generator=torch.Generator().manual_seed(int(rng.integers(2**31))))
+                   generator=torch.Generator().manual_seed(int(rng.integers(2**31))), progress=progress)
     if report is not None:
         report.update(solver=settings.solver, iterations=out.iterations, decoder_evaluations=out.evaluations,
                       seconds=round(out.seconds, 2))
@@ -56,9 +57,10 @@ def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.ra
 
 
 def reconstruct_mesh(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.random.Generator, resolution: int = 128,
-                     settings: FitSettings = LATENT_ONLY) -> tuple[trimesh.Trimesh | None, np.ndarray]:
+                     settings: FitSettings = LATENT_ONLY,
+                     progress: bool = False) -> tuple[trimesh.Trimesh | None, np.ndarray]:
     """Reconstructed surface in the input's own frame (or None), and the latent code."""
-    latent, norm = reconstruct_latent(model, mesh, rng=rng, settings=settings)
+    latent, norm = reconstruct_latent(model, mesh, rng=rng, settings=settings, progress=progress)
     out = decode_mesh(model.decoder, latent, resolution=resolution).mesh
     if out is not None:
         out.vertices = norm.to_mesh(out.vertices)

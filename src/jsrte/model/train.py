@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import csv
 import json
+import math
+import os
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -16,13 +18,14 @@ from typing import Any
 
 import numpy as np
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from tqdm import tqdm
 
 from jsrte.errors import JsrteError
-from jsrte.io import write_with
-from jsrte.model.checkpoint import DeepSdfModel, read_metadata, save_model, tensors_of
-from jsrte.model.config import LOG_NAME, MODEL_NAME, STATE_NAME, TrainSettings
+from jsrte.io import atomic_path
+from jsrte.model.checkpoint import DeepSdfModel, non_finite_tensors, read_metadata, save_model, tensors_of
+from jsrte.model.config import LOG_NAME, MODEL_NAME, PREVIOUS_STATE_NAME, STATE_NAME, TrainSettings
 from jsrte.model.decoder import Decoder, DecoderConfig
 from jsrte.model.distributed import DROPOUT_RANK_STRIDE, DistContext, average_gradient, sum_over_ranks
 
@@ -112,6 +115,9 @@ class Trainer:
         ])
         self.step = 0
         self.elapsed = 0.0
+        self.saved_step: int | None = None
+        """Step of the last checkpoint written or resumed from (None: none yet)."""
+        self.resumed_from: Path | None = None
 
     # -- one step ---------------------------------------------------------------------------
     def train_step(self) -> dict[str, float]:
@@ -132,6 +138,7 @@ class Trainer:
         l1 = clamped_l1(pred, target, s.clamp)
         reg = s.code_reg * codes.pow(2).sum(-1).mean()
         loss = l1 + reg
+        self._check_loss(float(loss.detach()))
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -167,7 +174,17 @@ class Trainer:
         self.optimizer.step()
         self.step += 1
         total_loss, total_l1 = sum_over_ranks(torch.stack([loss, l1])).tolist()
+        self._check_loss(total_loss, step=self.step)  # the same sum on every rank: all stop together
         return {"loss": total_loss, "l1": total_l1, "code_norm": code_norm, "lr_net": s.lr_net * factor}
+
+    def _check_loss(self, loss: float, step: int | None = None) -> None:
+        """JsrteError when the loss is NaN or infinite: training diverged; nothing more is written."""
+        if math.isfinite(loss):
+            return
+        kept = ("no checkpoint was written" if self.saved_step is None
+                else f"the checkpoint of step {self.saved_step} is kept")
+        raise JsrteError(f"training diverged: the loss is {loss} at step {(step or self.step) + 1}; {kept}; "
+                         "lower the learning rates (--lr-net, --lr-codes)", self.out_dir)
 
     @property
     def is_main(self) -> bool:
@@ -210,49 +227,99 @@ class Trainer:
     # -- checkpoints ------------------------------------------------------------------------
     def save_checkpoint(self, log_rows: list[dict[str, float]]) -> None:
         """Append the log, then write the training state and the usable model, each atomically."""
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        _append_log(self.out_dir / LOG_NAME, log_rows)
         model = self.model()
         tensors = tensors_of(model)
         for i, state in self.optimizer.state_dict()["state"].items():
             for key, value in state.items():
                 tensors[f"optimizer.{i}.{key}"] = torch.as_tensor(value).contiguous()
+        bad = non_finite_tensors(tensors)
+        if bad:
+            self._check_loss(math.nan, step=self.step - 1)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        _append_log(self.out_dir / LOG_NAME, log_rows)
         meta = {"format": "jsrte-train-state", "step": self.step, "elapsed": self.elapsed,
                 "architecture": self.config.to_dict(), "settings": asdict(self.settings),
                 "model_meta": model.meta}
-        write_with(self.out_dir / STATE_NAME,
-                   lambda tmp: save_file(tensors, str(tmp), metadata={"jsrte": json.dumps(meta)}))
+        state_path = self.out_dir / STATE_NAME
+        with atomic_path(state_path) as tmp:
+            save_file(tensors, str(tmp), metadata={"jsrte": json.dumps(meta)})
+            if state_path.exists():  # keep the one before, in case this one is damaged later
+                os.replace(state_path, self.out_dir / PREVIOUS_STATE_NAME)
         save_model(model, self.out_dir / MODEL_NAME)
+        self.saved_step = self.step
 
     def load_checkpoint(self) -> None:
-        """Restore the state written by :meth:`save_checkpoint` (for ``--resume``)."""
-        path = self.out_dir / STATE_NAME
-        meta = read_metadata(path)
-        if meta.get("format") != "jsrte-train-state":
-            raise JsrteError("not a training state file", path)
+        """Restore the state written by :meth:`save_checkpoint` (for ``--resume``); if the last
+        checkpoint is unreadable, the one before it (``resumed_from`` says which was read)."""
+        path, meta, tensors = readable_state(self.out_dir)
+        self._restore(path, meta, tensors)
+        self.resumed_from = path
+
+    def _restore(self, path: Path, meta: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
+        """Load a readable training state; JsrteError if it belongs to another run."""
         if DecoderConfig.from_dict(meta["architecture"]) != self.config:
             raise JsrteError("architecture differs from the run being resumed", path)
         saved = TrainSettings(**meta["settings"])
         if replace(saved, steps=self.settings.steps) != replace(self.settings, steps=self.settings.steps):
             raise JsrteError("training settings differ from the run being resumed", path)
-        tensors = load_file(str(path))
-        self.decoder.load_state_dict({k[8:]: v for k, v in tensors.items() if k.startswith("decoder.")})
         codes = tensors["latent_codes"]
         if codes.shape != self.codes.shape:
             raise JsrteError(f"has {codes.shape[0]} codes but the data has {self.codes.shape[0]} shapes",
                              path)
+        try:
+            self.decoder.load_state_dict({k[8:]: v for k, v in tensors.items() if k.startswith("decoder.")})
+            state = self.optimizer.state_dict()
+            for name, value in tensors.items():
+                if name.startswith("optimizer."):
+                    _, i, key = name.split(".", 2)
+                    state["state"].setdefault(int(i), {})[key] = value
+            self.optimizer.load_state_dict(state)
+        except (RuntimeError, ValueError, KeyError) as exc:
+            raise JsrteError(f"does not fit the run being resumed ({str(exc).splitlines()[0]})", path) from exc
         with torch.no_grad():
             self.codes.copy_(codes)
-        state = self.optimizer.state_dict()
-        for name, value in tensors.items():
-            if name.startswith("optimizer."):
-                _, i, key = name.split(".", 2)
-                state["state"].setdefault(int(i), {})[key] = value
-        self.optimizer.load_state_dict(state)
         self.step = int(meta["step"])
         self.elapsed = float(meta.get("elapsed", 0.0))
+        self.saved_step = self.step
         if self.is_main:
             _truncate_log(self.out_dir / LOG_NAME, self.step)
+
+
+def readable_state(out_dir: Path) -> tuple[Path, dict[str, Any], dict[str, torch.Tensor]]:
+    """The last readable training state in ``out_dir`` (the last checkpoint, else the one before):
+    its path, metadata and tensors; JsrteError saying what to delete when neither reads."""
+    problems = []
+    for name in (STATE_NAME, PREVIOUS_STATE_NAME):
+        path = Path(out_dir) / name
+        if not path.is_file():
+            continue
+        try:
+            return (path, *_read_state(path))
+        except JsrteError as exc:
+            problems.append(str(exc))
+    found = "; ".join(problems) or f"no {STATE_NAME}"
+    raise JsrteError(f"cannot resume ({found}); to start this run over, delete {STATE_NAME}, "
+                     f"{PREVIOUS_STATE_NAME} and {LOG_NAME} (the sampled shapes in data/ are kept)", out_dir)
+
+
+def _read_state(path: Path) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
+    """The metadata and tensors of a training state file; JsrteError if it is damaged."""
+    meta = read_metadata(path)
+    if meta.get("format") != "jsrte-train-state":
+        raise JsrteError("not a training state file", path)
+    try:
+        DecoderConfig.from_dict(meta["architecture"])
+        TrainSettings(**meta["settings"])
+        int(meta["step"])
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError, KeyError, TypeError, ValueError) as exc:
+        raise JsrteError(f"damaged training state ({type(exc).__name__}: {exc})", path) from exc
+    if "latent_codes" not in tensors or not any(k.startswith("decoder.") for k in tensors):
+        raise JsrteError("damaged training state (weights or codes missing)", path)
+    bad = non_finite_tensors(tensors)
+    if bad:
+        raise JsrteError(f"damaged training state (NaN or infinite values in {', '.join(bad[:3])})", path)
+    return meta, tensors
 
 
 def _data_parallel(decoder: Decoder, ctx: DistContext) -> torch.nn.Module:

@@ -71,7 +71,10 @@ class PrepareSettings:
     """Normal estimation radius, in units of the median nearest-neighbour spacing."""
     min_extent_m: float = 0.02
     max_extent_m: float = 10.0
-    """A scan outside this size (largest bounding-box side, metres) has the wrong units."""
+    """An object outside this size (largest bounding-box side, metres) has the wrong units."""
+    units_check: bool = True
+    """Refuse a scan whose object (or, when no floor is found, the whole scan) is outside
+    ``min_extent_m``..``max_extent_m``; False skips the check (``--no-units-check``)."""
     min_points: int = 50
     """Fewer points left than this after preprocessing is an error."""
 
@@ -407,25 +410,28 @@ def object_cluster(points: np.ndarray, *, eps: float, min_points: int, join_m: f
 
 def check_units(
     points: np.ndarray, path: object = None, *,
-    settings: PrepareSettings = PrepareSettings(),
+    settings: PrepareSettings = PrepareSettings(), what: str = "the object",
 ) -> float:
-    """Raise ``JsrteError`` if the scan's size is implausible in metres; returns the size.
+    """Raise ``JsrteError`` if the size of ``points`` (the object, normally) is implausible in
+    metres; returns the size.
 
     The size is the largest side of the bounding box of the 1st-99th percentiles (stray
     points do not count). Above ``max_extent_m`` the scan is probably in millimetres (or
-    centimetres); below ``min_extent_m`` the units are wrong too.
+    centimetres); below ``min_extent_m`` the units are wrong too. A room around the object
+    may be any size: only the object is checked once it is found.
     """
     points = np.asarray(points, dtype=np.float64)
     lo, hi = np.percentile(points, [1, 99], axis=0)
     size = float((hi - lo).max())
+    hint = "convert it to metres, or pass --no-units-check if it is in metres"
     if size > settings.max_extent_m:
         raise JsrteError(
-            f"the scan is {size:.4g} units across, implausible for metres: probably in "
-            f"millimetres or centimetres; convert it to metres", path)
+            f"{what} is {size:.4g} units across, implausible for metres: probably in "
+            f"millimetres or centimetres; {hint}", path)
     if size < settings.min_extent_m:
         raise JsrteError(
-            f"the scan is only {size:.3g} units across (< {settings.min_extent_m * 100:.0f} cm in "
-            f"metres): wrong units or a degenerate scan; convert it to metres", path)
+            f"{what} is only {size:.3g} units across (< {settings.min_extent_m * 100:.0f} cm in "
+            f"metres): wrong units or a degenerate scan; {hint}", path)
     return size
 
 
@@ -440,11 +446,12 @@ def prepare_scan(
 ) -> PreparedScan:
     """The paper's preprocessing of a real scan: the object's points with outward normals.
 
-    Steps: unit check; floor plane (RANSAC, :func:`segment_floor`) whose normal is the up
+    Steps: floor plane (RANSAC, :func:`segment_floor`) whose normal is the up
     axis unless ``up`` is given (then a plane perpendicular to ``up`` is still removed as
     floor if found); points within the floor clearance (or below the floor) removed; the
     largest DBSCAN cluster kept with the clusters near it; statistical outlier removal;
-    hidden point removal from ``viewpoints`` (k, 3) if given; normals kept from the file
+    hidden point removal from ``viewpoints`` (k, 3) if given; the object's size checked for
+    metres (:func:`check_units`, unless ``settings.units_check`` is False); normals kept from the file
     (re-oriented towards the viewpoints that see them if viewpoints are known) or estimated.
 
     Parameters
@@ -455,11 +462,15 @@ def prepare_scan(
     viewpoints : (k, 3) camera centres if known
     """
     points = cloud.points
-    check_units(points, cloud.path, settings=settings)
     index = np.arange(len(points))
     if viewpoints is not None:
         viewpoints = np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3)
-    floor, up_axis = _floor_and_up(cloud, up, viewpoints, rng, settings)
+    try:
+        floor, up_axis = _floor_and_up(cloud, up, viewpoints, rng, settings)
+    except JsrteError:
+        if settings.units_check:  # a scan in millimetres has no floor in metres: say so first
+            check_units(points, cloud.path, settings=settings, what="the scan, with no floor found,")
+        raise
     if floor is not None:
         index = index[_above_floor(points, floor, settings)]
     _require(index, settings, cloud.path, "above the floor")
@@ -475,6 +486,8 @@ def prepare_scan(
                                             radius_factor=settings.hpr_radius_factor)
         index = index[visible]
     _require(index, settings, cloud.path, "after outlier removal")
+    if settings.units_check:
+        check_units(points[index], cloud.path, settings=settings)
     kept = points[index]
     if cloud.normals is None:
         normals = estimate_normals(kept, viewpoints=viewpoints, up=up_axis, settings=settings)

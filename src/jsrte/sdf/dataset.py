@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +14,7 @@ from jsrte.errors import JsrteError
 from jsrte.geometry.mesh import load_mesh
 from jsrte.io import write_json_atomic
 from jsrte.presets import SdfSampling
+from jsrte.processes import die_with_parent
 from jsrte.sdf.mesh_sdf import sample_cache_key, sample_sdf
 
 INDEX_NAME = "index.json"
@@ -60,7 +62,8 @@ def build_sdf_dataset(
         if not out.exists():
             jobs.append(_Job(Path(mesh_path), out, settings, seed + i))
     if jobs:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with ProcessPoolExecutor(max_workers=workers, initializer=die_with_parent,
+                                 initargs=(os.getpid(),)) as pool:
             done = pool.map(_run, jobs)
             for _ in tqdm(done, total=len(jobs), desc="sampling SDF", disable=not progress):
                 pass

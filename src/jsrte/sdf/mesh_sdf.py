@@ -60,6 +60,16 @@ class SdfSamples:
             raise JsrteError(f"not an SDF sample file ({type(exc).__name__}: {exc})", path) from exc
         if pts.ndim != 2 or pts.shape[1] != 3 or sdf.shape != (len(pts),):
             raise JsrteError(f"points {pts.shape} and sdf {sdf.shape} do not match", path)
+        if len(pts) == 0:
+            raise JsrteError("holds no samples", path)
+        if not all(np.issubdtype(a.dtype, np.number) for a in (pts, sdf, centre)):
+            raise JsrteError("points, sdf and centre must be numbers", path)
+        if not (np.isfinite(pts).all() and np.isfinite(sdf).all()):
+            raise JsrteError("holds NaN or infinite samples", path)
+        centre = np.asarray(centre, dtype=np.float64)
+        if centre.shape != (3,) or not np.isfinite(centre).all() or not (np.isfinite(scale) and scale > 0):
+            raise JsrteError(f"bad normalization (centre {centre.tolist()}, scale {scale}): centre must be 3 "
+                             "finite numbers and scale positive", path)
         return SdfSamples(pts.astype(np.float32), sdf.astype(np.float32), centre, scale)
 
 

@@ -13,6 +13,7 @@ from manifold3d import Manifold
 
 from jsrte.shapes.params import ParamSampler
 from jsrte.shapes.parts import (
+    CLEARANCE_M,
     FLOOR_SINK_M,
     OVERLAP_M,
     Parts,
@@ -142,7 +143,8 @@ def _arms(parts: Parts, s: ParamSampler, h: float, w: float, d: float, t: float,
     y_top = h + arm_h
     back_z = frame.world([0.0, y_top - frame.origin[1], 0.0])[2]
     z0, z1 = zf - aw / 2 - 0.02, back_z
-    parts.add_pair(box((aw, at, z1 - z0), (x, y_top - at / 2, (z0 + z1) / 2)))
+    inset = CLEARANCE_M if round_posts else 0.0  # else the outer face is tangent to the round back post
+    parts.add_pair(box((aw - inset, at, z1 - z0), (x - inset / 2, y_top - at / 2, (z0 + z1) / 2)))
     post_y0, post_y1 = h - OVERLAP_M, y_top - at + OVERLAP_M
     pw = max(0.03, aw * 0.8)
     if round_posts:

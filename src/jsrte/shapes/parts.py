@@ -21,6 +21,10 @@ FLOOR_SINK_M = 0.01
 """Parts meant to stand on the floor reach this far below it; the floor cut removes it."""
 OVERLAP_M = 0.005
 """How far parts reach into their neighbours so that the union is one body."""
+CLEARANCE_M = 0.001
+"""How far a face stays off a neighbour it would otherwise only touch along a line (a flat
+face tangent to a round part, two faces flush at a corner): such contact gives edges shared
+by four faces, so the mesh would not be watertight once its coincident vertices are merged."""
 
 Vec = Sequence[float] | np.ndarray
 
@@ -139,14 +143,16 @@ class Parts:
     def to_trimesh(self) -> trimesh.Trimesh:
         """The union as a watertight trimesh, standing on ``y = 0``, centred at ``x = z = 0``.
 
+        A closed pocket of air enclosed by the parts (cushions meeting around a gap) is filled:
+        only the outer surface is kept.
+
         Raises ``RuntimeError`` (a generator bug, not bad input) if the parts do not form
         exactly one connected body.
         """
-        solid = self.union()
-        bodies = len(solid.decompose())
-        if bodies != 1:
-            raise RuntimeError(f"procedural shape has {bodies} bodies; parts must overlap")
-        mesh = solid.to_mesh64()
+        bodies = [body for body in self.union().decompose() if body.volume() > 0]  # < 0: an enclosed void
+        if len(bodies) != 1:
+            raise RuntimeError(f"procedural shape has {len(bodies)} bodies; parts must overlap")
+        mesh = bodies[0].to_mesh64()
         vertices = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
         lo, hi = vertices.min(axis=0), vertices.max(axis=0)
         vertices = vertices - np.array([0.0, lo[1], (lo[2] + hi[2]) / 2])

@@ -13,6 +13,7 @@ import numpy as np
 
 from jsrte.shapes.params import ParamSampler
 from jsrte.shapes.parts import (
+    CLEARANCE_M,
     FLOOR_SINK_M,
     OVERLAP_M,
     SEGMENTS,
@@ -167,5 +168,5 @@ def _open_arms(parts: Parts, s: ParamSampler, inner_w: float, arm_w: float, base
     x = inner_w / 2 + arm_w / 2
     z_post = zf + s.uniform("arm_post_inset_m", 0.03, 0.10)
     parts.add_pair(box((arm_w, at, z_back - zf + 0.03), (x, arm_h - at / 2, (zf + z_back) / 2 + 0.015)))
-    parts.add_pair(bar((x, base_top - 0.05, z_post), (x, arm_h - at + OVERLAP_M, z_post), arm_w,
-                       max(0.03, arm_w)))
+    parts.add_pair(bar((x, base_top - 0.05, z_post), (x, arm_h - at + OVERLAP_M, z_post),
+                       arm_w - 2 * CLEARANCE_M, max(0.03, arm_w)))  # not flush with the armrest's sides

@@ -12,6 +12,7 @@ import numpy as np
 
 from jsrte.shapes.params import ParamSampler
 from jsrte.shapes.parts import (
+    CLEARANCE_M,
     FLOOR_SINK_M,
     OVERLAP_M,
     Parts,
@@ -158,7 +159,7 @@ def _panel(parts: Parts, s: ParamSampler) -> None:
     pt = s.uniform("panel_thickness_m", 0.03, 0.06)
     inset = s.uniform("panel_inset_m", 0.0, 0.1)
     depth = d - 2 * s.uniform("panel_depth_inset_m", 0.0, 0.08)
-    x = w / 2 - inset - pt / 2
+    x = w / 2 - max(inset, CLEARANCE_M) - pt / 2  # a panel flush with the top's side meets it along a line
     parts.add_pair(span_box((x - pt / 2, -FLOOR_SINK_M, -depth / 2),
                             (x + pt / 2, h - t + OVERLAP_M, depth / 2)))
     if s.flag("modesty_panel", 0.6):

@@ -1,4 +1,4 @@
-"""SDF sampling speed and sign correctness (issue 2's numbers).
+"""SDF sampling speed and sign correctness.
 
 Run: .venv/bin/python benchmarks/bench_sdf.py
 - time of 250 000 DeepSDF samples of a ~20k-face mesh: ours (point-cloud-utils fast winding

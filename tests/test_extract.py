@@ -205,7 +205,9 @@ def test_no_surface_gives_none():
 
 
 def test_non_finite_sdf_raises():
-    with pytest.raises(ValueError, match="NaN"):
+    from jsrte.errors import JsrteError
+
+    with pytest.raises(JsrteError, match="NaN"):
         extract_dense(lambda p: torch.full((len(p),), float("nan")), resolution=8)
 
 

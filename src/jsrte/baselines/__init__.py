@@ -17,8 +17,8 @@ every method sees the same data.
 
 Why PCL, and how
 ----------------
-The paper's Harris3D, SHOT and OUR-CVFH baselines ran PCL's implementations, and the issue
-prefers those very implementations. We measured, on this project's 2-core machine kind: Debian
+The paper's Harris3D, SHOT and OUR-CVFH baselines ran PCL's implementations, and we
+prefer those very implementations. We measured, on this project's 2-core machine kind: Debian
 12's ``libpcl-dev`` (PCL 1.13.0) installs with ``apt-get`` in 3.5 minutes (490 packages, about
 300 MB to download, 1.6 GB on disk: it pulls VTK, Qt and Boost), and the pybind11 binding
 (``pcl_binding.cpp``, three functions) compiles in 40-75 s using 0.9 GB of memory. That fits

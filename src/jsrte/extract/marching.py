@@ -22,6 +22,8 @@ import torch
 import trimesh
 from skimage import measure
 
+from jsrte.errors import JsrteError
+
 SdfFunction = Callable[[torch.Tensor], torch.Tensor]
 """``points (n, 3) float32 tensor`` in the canonical cube -> ``sdf (n,)`` (or ``(n, 1)``) tensor."""
 
@@ -468,7 +470,7 @@ def _cell_corners(cells: np.ndarray) -> np.ndarray:
 def _marching_cubes(values: np.ndarray, h: float, bound: float, level: float) -> trimesh.Trimesh | None:
     """Level set of a full grid (n, n, n) -> outward-oriented mesh in canonical coordinates."""
     if not np.all(np.isfinite(values)):
-        raise ValueError("SDF function returned NaN or infinite values")
+        raise JsrteError("the SDF gave NaN or infinite values (is the model damaged?)")
     if values.min() > level or values.max() < level:
         return None
     # skimage's "descent" (its default, documented for a solid holding the larger values)

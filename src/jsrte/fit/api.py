@@ -29,7 +29,10 @@ def class_geometry(model: DeepSdfModel) -> ClassGeometry:
     the mean training code (cached in ``model.meta``)."""
     meta = model.meta
     if "canonical_height" not in meta or "canonical_radius" not in meta:
-        mesh = decode_mesh(model.decoder, model.mean_code(), resolution=64).mesh
+        try:
+            mesh = decode_mesh(model.decoder, model.mean_code(), resolution=64).mesh
+        except JsrteError as exc:
+            raise JsrteError(f"the fit diverged before it started: {exc}") from None
         if mesh is None:
             meta["canonical_height"], meta["canonical_radius"] = 1.0, 1.0
         else:

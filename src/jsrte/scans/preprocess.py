@@ -46,11 +46,6 @@ class PrepareSettings:
     """With a given up axis, a plane this close to perpendicular to it is taken as the floor."""
     floor_clearance_m: float = 0.02
     """Points less than this high above the floor are removed (raised to 3x the floor noise)."""
-    cluster_eps_factor: float = 4.0
-    """DBSCAN radius, in units of the median nearest-neighbour spacing."""
-    cluster_min_points: int = 10
-    cluster_join_m: float = 0.1
-    """Clusters within this distance of the biggest one are parts of the object."""
     sor_neighbours: int = 20
     sor_std_ratio: float = 2.0
     """Statistical outlier removal: drop points whose mean neighbour distance exceeds the
@@ -405,35 +400,6 @@ def median_spacing(points: np.ndarray) -> float:
         return 0.0
     distance, _ = KDTree(points).query(points, k=2)
     return float(np.median(distance[:, 1]))
-
-
-def object_cluster(points: np.ndarray, *, eps: float, min_points: int, join_m: float
-                   ) -> np.ndarray:
-    """Mask (n,) bool of the object in ``points`` (n, 3): the largest DBSCAN cluster (Open3D)
-    and every cluster that comes within ``join_m`` of it (parts of one object, such as a thin
-    column's base, split apart by sparse sampling); DBSCAN's noise points are dropped."""
-    import open3d as o3d
-    from pykdtree.kdtree import KDTree
-
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    labels = np.asarray(cloud.cluster_dbscan(eps, min_points, print_progress=False))
-    if labels.max(initial=-1) < 0:
-        return np.ones(len(points), dtype=bool)
-    sizes = np.bincount(labels[labels >= 0])
-    keep = labels == sizes.argmax()
-    pending = [k for k in np.argsort(-sizes) if k != sizes.argmax()]
-    grew = True
-    while grew and pending:
-        grew = False
-        tree = KDTree(points[keep])
-        for k in list(pending):
-            distance, _ = tree.query(points[labels == k], k=1)
-            if distance.min() <= join_m:
-                keep |= labels == k
-                pending.remove(k)
-                grew = True
-    return keep
 
 
 def check_units(

@@ -82,7 +82,7 @@ class SceneSettings:
     """The further ones stand this far from everything already placed."""
     box_size_m: tuple[float, float] = (0.25, 0.7)
     """Side lengths of a box, each drawn in this range."""
-    front_clearance_deg: float = 40.0
+    front_clearance_deg: float = 70.0
     """No other object stands within this azimuth of the cameras' direction, seen from the
     target (it would hide it): they stand beside or behind it."""
     max_depth_m: float = 6.0

@@ -90,6 +90,9 @@ class SegmentSettings:
     cut_samples: int = 2000
     cut_neighbours: int = 10
     """The normalized cut's graph: this many points, each joined to this many nearest."""
+    cut_max: float = 0.02
+    """Only a cut of at most this value is a neck between two objects (a cut through one
+    object's surface costs more)."""
     split_margin: float = 0.1
     """A split is kept when a part's class score beats the whole's by this much."""
     size_weight: float = 0.1
@@ -313,9 +316,9 @@ def _split(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: 
     too_big = _too_big(points[cluster], heights[cluster], s)
     if whole is None and not too_big:
         return [cluster]
-    side = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours)
+    side, value = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours)
     parts = [cluster[side], cluster[~side]]
-    if min(len(p) for p in parts) < s.min_points:
+    if value > s.cut_max or min(len(p) for p in parts) < s.min_points:
         return [cluster]
     best = min((class_score(points[p], heights[p], shape) or 0.0) for p in parts)
     if not (too_big or (whole is not None and best < whole - s.split_margin)):
@@ -324,8 +327,9 @@ def _split(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: 
 
 
 def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int = 10,
-                   seed: int = 0) -> np.ndarray:
-    """Two-way normalized cut (Shi and Malik 2000) of ``points`` (n, 3): mask (n,) of one side.
+                   seed: int = 0) -> tuple[np.ndarray, float]:
+    """Two-way normalized cut (Shi and Malik 2000) of ``points`` (n, 3): mask (n,) of one side,
+    and the cut's value (0: two parts apart; about 2 / neighbours when cut through a surface).
 
     Up to ``samples`` points (a fixed random subset) make a symmetric k-nearest-neighbour graph
     with Gaussian weights of the distance; the Fiedler vector of its normalized Laplacian
@@ -353,7 +357,7 @@ def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int =
         start = np.random.default_rng(seed).uniform(0.5, 1.5, size=len(sub))
         _, vectors = eigsh(normalized, k=2, which="LA", tol=1e-4, maxiter=5000, v0=start)
     except Exception:  # no convergence: no cut
-        return np.ones(len(points), dtype=bool)
+        return np.ones(len(points), dtype=bool), float("inf")
     fiedler = vectors[:, 0] / np.sqrt(degree)
     best, best_cut = None, np.inf
     for threshold in np.quantile(fiedler, np.linspace(0.05, 0.95, 19)):
@@ -363,9 +367,9 @@ def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int =
         if value < best_cut:
             best, best_cut = side, value
     if best is None:
-        return np.ones(len(points), dtype=bool)
+        return np.ones(len(points), dtype=bool), float("inf")
     _, nearest = KDTree(sub).query(points, k=1)
-    return best[nearest]
+    return best[nearest], best_cut
 
 
 def _too_big(points: np.ndarray, heights: np.ndarray, s: SegmentSettings) -> bool:

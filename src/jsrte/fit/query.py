@@ -42,9 +42,10 @@ def query_from_mesh(mesh: trimesh.Trimesh, *, rng: np.random.Generator, up: np.n
     return query
 
 
-def class_shape(model: object) -> ClassShape:
+def class_shape(model: object) -> ClassShape | None:
     """The proportions and height profile of ``model``'s class (a ``DeepSdfModel``): its mean
-    training code's surface, decoded once and cached in the model's metadata."""
+    training code's surface, decoded once and cached in the model's metadata (None when that
+    surface is empty: then a scan's largest object is taken)."""
     meta = model.meta
     name = str(meta.get("category") or model.name)
     if "class_aspect" not in meta or "class_profile" not in meta:
@@ -52,7 +53,7 @@ def class_shape(model: object) -> ClassShape:
 
         mesh = decode_mesh(model.decoder, model.mean_code(), resolution=64).mesh
         if mesh is None:
-            raise JsrteError(f"the model {model.name!r} decodes an empty mean shape: cannot tell its objects")
+            return None
         samples = np.asarray(mesh.sample(5000, seed=0))
         shape = ClassShape.of_mesh(name, np.asarray(mesh.vertices), samples)
         meta["class_aspect"], meta["class_profile"] = shape.aspect, shape.profile.tolist()

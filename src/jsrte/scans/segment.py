@@ -104,8 +104,10 @@ class SegmentSettings:
     """A cluster with less than this share of a neighbour's points is a fragment of it."""
     join_slack: float = 0.05
     """Two big clusters merge when the merge's class score is at most the bigger's plus this."""
-    min_points: int = 300
-    """Fewer points than this: too few to fit (and a shred of another object)."""
+    min_points: int = 50
+    """Fewer points than this: too few to fit."""
+    shred_points: int = 300
+    """Clusters of fewer points are shreds: joined to a neighbour if near one, never cut."""
     min_height_m: float = 0.15
     """Lower than this (2nd to 98th percentile of the heights above the floor): too flat."""
     min_width_m: float = 0.08
@@ -310,7 +312,7 @@ def _split(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: 
     meet). A split is kept when one part matches the class better than the whole by
     ``split_margin``, or when the whole is too big to be an object; each part is split
     again, ``split_depth`` deep."""
-    if len(cluster) < 2 * s.min_points or depth >= s.split_depth:
+    if len(cluster) < 2 * s.shred_points or depth >= s.split_depth:
         return [cluster]
     whole = class_score(points[cluster], heights[cluster], shape)
     too_big = _too_big(points[cluster], heights[cluster], s)
@@ -318,7 +320,7 @@ def _split(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: 
         return [cluster]
     side, value = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours)
     parts = [cluster[side], cluster[~side]]
-    if value > s.cut_max or min(len(p) for p in parts) < s.min_points:
+    if value > s.cut_max or min(len(p) for p in parts) < s.shred_points:
         return [cluster]
     best = min((class_score(points[p], heights[p], shape) or 0.0) for p in parts)
     if not (too_big or (whole is not None and best < whole - s.split_margin)):
@@ -396,14 +398,15 @@ def _flat(points: np.ndarray, heights: np.ndarray) -> np.ndarray:
 
 def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
           s: SegmentSettings) -> list[np.ndarray]:
-    """Merge clusters closer than ``join_m``: clusters of fewer than ``min_points`` points into
-    the nearest big one; then big ones, closest pairs first, a fragment (less than
+    """Merge clusters closer than ``join_m``: clusters of fewer than ``shred_points`` points into
+    the nearest big one (the largest cluster is big whatever its size); then big ones, closest pairs first, a fragment (less than
     ``fragment_share`` of the other's points) always, two big ones when the merge matches the
     class as well as the bigger alone (within ``join_slack``; always without a class)."""
-    big = [c for c in clusters if len(c) >= s.min_points]
-    small = [c for c in clusters if 0 < len(c) < s.min_points]
-    if not big:
-        return small
+    clusters = sorted((c for c in clusters if len(c)), key=len, reverse=True)
+    if not clusters:
+        return []
+    big = [c for k, c in enumerate(clusters) if k == 0 or len(c) >= s.shred_points]  # the largest at least
+    small = [c for k, c in enumerate(clusters) if k > 0 and len(c) < s.shred_points]
     big = _attach_small(big, small, points, s.join_m)
     gaps = np.full((len(big), len(big)), np.inf)
     for i in range(len(big)):

@@ -398,10 +398,11 @@ def _flat(points: np.ndarray, heights: np.ndarray) -> np.ndarray:
 
 def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
           s: SegmentSettings) -> list[np.ndarray]:
-    """Merge clusters closer than ``join_m``: clusters of fewer than ``shred_points`` points into
-    the nearest big one (the largest cluster is big whatever its size); then big ones, closest pairs first, a fragment (less than
-    ``fragment_share`` of the other's points) always, two big ones when the merge matches the
-    class as well as the bigger alone (within ``join_slack``; always without a class)."""
+    """Merge clusters closer than ``join_m``: clusters of fewer than ``shred_points`` points
+    into the nearest big one (the largest cluster is big whatever its size); then big ones,
+    closest pairs first, a fragment (less than ``fragment_share`` of the other's points)
+    always, two big ones when the merge matches the class as well as the bigger alone (within
+    ``join_slack``; always without a class)."""
     clusters = sorted((c for c in clusters if len(c)), key=len, reverse=True)
     if not clusters:
         return []

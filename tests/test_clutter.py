@@ -244,3 +244,19 @@ def test_cli_scene_writes_a_room(tmp_path, monkeypatch, capsys):
     code, _, err = run_cli(monkeypatch, capsys, "scene", "--out", tmp_path / "x", "--kinds", "lamp")
     assert code == 2 and "--kinds" in err and err.count("\n") == 1
     assert not (tmp_path / "x").exists()
+
+
+def test_cli_fit_at_records_the_choice(tmp_path, monkeypatch, capsys, room):
+    """``jsrte fit ROOM --at X,Y,Z`` fits the object there; fit.json records every candidate."""
+    ply = write_room(room, tmp_path / "room")
+    box_centre = room.scan.points[room.labels == 1].mean(0)
+    args = ["fit", ply, "--preset", "smoke", "--hypotheses", "2", "--threads", "1", "--no-progress"]
+    code, _, err = run_cli(monkeypatch, capsys, *args, "--out", tmp_path / "fit",
+                           "--at", ",".join(f"{v:.4f}" for v in box_centre))
+    assert code == 0, err
+    record = json.loads((tmp_path / "fit" / "fit.json").read_text())["query"]["segmentation"]
+    chosen = record["candidates"][record["chosen"]]
+    assert record["chosen_by"] == "at" and chosen["distance_to_at_m"] < 0.1
+    assert len(record["candidates"]) >= 2 and sum(c["chosen"] for c in record["candidates"]) == 1
+    code, _, err = run_cli(monkeypatch, capsys, *args, "--out", tmp_path / "bad", "--at", "1,2")
+    assert code == 2 and "--at" in err and not (tmp_path / "bad").exists()

@@ -28,6 +28,9 @@ def scans_command(
     jobs: int = typer.Option(1, help="Scans run in this many processes at once (threads shared among them)."),
     html_report: bool = typer.Option(True, "--report/--no-report",
                                      help="Also write report.html beside results.csv (3D view of each fit)."),
+    clutter: bool = typer.Option(False, "--clutter", help="Scan each shape in a room: walls, a table and boxes "
+                                                          "beside it, one touching it (docs/clutter.md)."),
+    first: int = typer.Option(0, help="First evaluation-set index of the virtual scans (0: Table 2's)."),
 ) -> None:
     """Every method on every scan; F@5% against the true shape and the scan, times, figures."""
     from jsrte.baselines import BASELINE_NAMES
@@ -46,7 +49,8 @@ def scans_command(
     set_threads(threads)
     with output_dir(out, overwrite=overwrite, marker="table.md") as folder_out:
         cases = (folder_cases(folder) if folder is not None
-                 else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed))
+                 else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed,
+                                    first=first, clutter=clutter))
         run_scan_experiment(cases, list(chosen), folder_out, model=loaded, preset=preset, seed=seed,
                             jobs=jobs, threads=threads or None, report=html_report)
     typer.echo((out / "table.md").read_text())

@@ -82,6 +82,8 @@ def fit_command(
     free_axis: bool = typer.Option(
         False, "--free-axis", help="Let the rotation axis move away from the up axis (default: held at the "
                                    "floor normal / --up, the paper's known-axis mode)."),
+    at: str = typer.Option(None, "--at", help="In a scan of several objects, fit the one nearest X,Y,Z (scan "
+                                              "frame, metres); default: the one most like the model's class."),
     preset: str = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)}."),
     hypotheses: int = typer.Option(None, help="Number of θ starts (default: every 30°, 12)."),
     seed: int = typer.Option(0, help="Random seed."),
@@ -106,8 +108,8 @@ def fit_command(
     viewpoints = parse_points(viewpoint)
     set_threads(threads)
     result = fit(scan, model=model, preset=preset, up=parse_vector(up), viewpoints=viewpoints,
-                 line_of_sight=line_of_sight, free_axis=free_axis, hypotheses=hypotheses, seed=seed,
-                 progress=progress, device=torch_device, units_check=units_check)
+                 line_of_sight=line_of_sight, free_axis=free_axis, at=_three_numbers(at, "--at") if at else None,
+                 hypotheses=hypotheses, seed=seed, progress=progress, device=torch_device, units_check=units_check)
     with output_dir(out, overwrite=overwrite, marker=RESULT_NAME) as folder:
         query_points = _surface_points(scan, result)
         write_fit_outputs(result, folder, query_points=query_points, up=result.info.get("up"),

@@ -38,14 +38,26 @@ class ScanCase:
     info: dict = field(default_factory=dict)
 
 
-def virtual_cases(category: str, n: int, folder: Path, *, seed: int = 0, first: int = 0) -> list[ScanCase]:
+CLUTTER_KINDS = ("table", "box")
+"""What stands beside the object in a cluttered scan (``--clutter``): a table and boxes, as in
+a room; never a second object of the class (which one would be "the" object?)."""
+
+
+def virtual_cases(category: str, n: int, folder: Path, *, seed: int = 0, first: int = 0,
+                  clutter: bool = False) -> list[ScanCase]:
     """Scan ``n`` held-out shapes of ``category`` (evaluation set indices ``first``...) into
-    ``folder`` (scan_000.ply + .json)."""
+    ``folder`` (category_000.ply + .json). With ``clutter``, each shape is scanned in a room
+    instead (:func:`jsrte.scans.scene.scan_room`: walls, a table and boxes beside it, one of
+    them touching it) into ``folder/category_000/`` (scan.ply, scan.json, scene.json,
+    labels.npy, meshes/); the room is drawn from the same seed, so the same index always
+    gives the same room."""
     from jsrte.experiments.truth import truth_of
     from jsrte.geometry.mesh import save_mesh
     from jsrte.scans.scanner import scan_mesh, write_scan
     from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 
+    if clutter:
+        return _cluttered_cases(category, n, folder, seed=seed, first=first)
     cases = []
     for i in range(first, first + n):
         shape = generate_shape(category, shape_seed(EVAL_SET_SEED, i))
@@ -55,6 +67,27 @@ def virtual_cases(category: str, n: int, folder: Path, *, seed: int = 0, first: 
         path = write_scan(scan, folder / f"{category}_{i:03d}.ply", seed=seed, mesh=mesh_path)
         cases.append(ScanCase(path.stem, path, truth_of(shape.mesh, scan.scan_from_mesh),
                               {"style": shape.style, "points": len(scan.points)}))
+    return cases
+
+
+def _cluttered_cases(category: str, n: int, folder: Path, *, seed: int, first: int) -> list[ScanCase]:
+    from dataclasses import replace
+
+    from jsrte.experiments.truth import truth_of
+    from jsrte.scans.scene import SceneSettings, scan_room, write_room
+    from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
+
+    settings = replace(SceneSettings(), other_kinds=CLUTTER_KINDS)
+    cases = []
+    for i in range(first, first + n):
+        shape = generate_shape(category, shape_seed(EVAL_SET_SEED, i))
+        room = scan_room(shape.mesh, rng=np.random.default_rng(seed * 100_003 + i), settings=settings,
+                         target_kind=category)
+        path = write_room(room, folder / f"{category}_{i:03d}", seed=seed)
+        cases.append(ScanCase(f"{category}_{i:03d}", path, truth_of(shape.mesh, room.scan.scan_from_mesh),
+                              {"style": shape.style, "points": len(room.scan.points),
+                               "others": ",".join(o.kind for o in room.objects[1:]),
+                               "walls": len(room.walls)}))
     return cases
 
 
@@ -253,9 +286,14 @@ def _scores(result: FitResult, case: ScanCase, scan_points: np.ndarray, seed: in
 
 
 def _object_points(case: ScanCase, scan_points: np.ndarray) -> np.ndarray:
-    """The object's points of a scan (the floor removed by the truth's plane when known)."""
+    """The object's points of a scan (the floor removed by the truth's plane when known; a
+    room's object by its labels)."""
     from jsrte.scans.io import read_scan_info
+    from jsrte.scans.scene import read_room_labels
 
+    labels = read_room_labels(case.path)
+    if labels is not None and len(labels) == len(scan_points):
+        return scan_points[labels == 0]
     info = read_scan_info(case.path)
     if info is None:
         return scan_points

@@ -16,7 +16,7 @@ from jsrte.model.checkpoint import DeepSdfModel
 
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
         up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool | None = None,
-        free_axis: bool = False,
+        free_axis: bool = False, at: np.ndarray | None = None,
         hypotheses: int | None = None, seed: int = 0, progress: bool = False,
         device: str | torch.device | None = None, units_check: bool = True) -> FitResult:
     """Find the shape and the similarity transform that explain ``query``.
@@ -36,6 +36,9 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
         ``paper``: off; docs/presets.md). Without viewpoints there are none either way
     free_axis : let the rotation axis move from the up axis too (default: held, the paper's
         known-axis mode, whenever the up axis is known)
+    at : (3,) in a scan of several objects, fit the one nearest this point (scan units);
+        default: the one whose proportions match the model's class best (fit.json's
+        ``query.segmentation`` records the choice and the other candidates)
     hypotheses : number of θ starts (default: every 30°, 12)
     device : where the decoder runs ("cpu", "cuda", ...); a loaded ``model`` is moved there
         (None: a loaded model stays where it is, a named one runs on the CPU)
@@ -59,12 +62,19 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
         rng = np.random.default_rng(seed)
         sdf_query = query if isinstance(query, SdfQuery) else load_query(
             query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf,
-            units_check=units_check)
+            units_check=units_check, shape=_shape_if_scan(query, loaded), at=at)
     result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=hypotheses, seed=seed, progress=progress)
     result.info.update(preset=settings.name, model=loaded.name, model_sha256=loaded.meta.get("sha256"),
                        query=sdf_query.info, device=str(decoder_device(loaded.decoder)),
                        up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())
     return result
+
+
+def _shape_if_scan(query: str | Path, model: DeepSdfModel) -> object:
+    """The class's proportions when ``query`` is a scan (segmentation needs them), else None."""
+    from jsrte.fit.query import SCAN_SUFFIXES, class_shape
+
+    return class_shape(model) if Path(query).suffix.lower() in SCAN_SUFFIXES else None
 
 
 __all__ = ["FitResult", "SdfQuery", "fit", "fit_query"]

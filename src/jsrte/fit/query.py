@@ -12,6 +12,7 @@ from jsrte.errors import JsrteError
 from jsrte.fit.optimize import SdfQuery
 from jsrte.geometry.mesh import load_mesh
 from jsrte.presets import ScanSdf, SdfSampling
+from jsrte.scans.segment import ClassShape
 from jsrte.sdf.mesh_sdf import SdfSamples, sample_sdf
 from jsrte.timing import stage
 
@@ -42,14 +43,40 @@ def query_from_mesh(mesh: trimesh.Trimesh, *, rng: np.random.Generator, up: np.n
     return query
 
 
+def class_shape(model: object) -> ClassShape | None:
+    """The proportions and height profile of ``model``'s class (a ``DeepSdfModel``): its mean
+    training code's surface, decoded once and cached in the model's metadata (None when that
+    surface is empty: then a scan's largest object is taken)."""
+    meta = model.meta
+    name = str(meta.get("category") or model.name)
+    if "class_aspect" not in meta or "class_profile" not in meta:
+        from jsrte.model.decode import decode_mesh
+
+        mesh = decode_mesh(model.decoder, model.mean_code(), resolution=64).mesh
+        if mesh is None:
+            return None
+        samples = np.asarray(mesh.sample(5000, seed=0))
+        shape = ClassShape.of_mesh(name, np.asarray(mesh.vertices), samples)
+        meta["class_aspect"], meta["class_profile"] = shape.aspect, shape.profile.tolist()
+    return ClassShape(name=name, aspect=float(meta["class_aspect"]),
+                      profile=np.asarray(meta["class_profile"], dtype=np.float64))
+
+
 def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
                     viewpoints: np.ndarray | None = None, settings: ScanSdf = ScanSdf(),
-                    units_check: bool = True) -> SdfQuery:
+                    units_check: bool = True, shape: ClassShape | None = None,
+                    at: np.ndarray | None = None) -> SdfQuery:
     """A scan (point cloud or scan mesh, metres, floor optional when ``up`` is given): the
     paper's preprocessing, then SDF samples ±δ along the normals plus freespace samples, plus
     free space on the lines of sight when the sensor's ``viewpoints`` (k, 3) are known (given,
     or the ``cameras`` of the scan's JSON sidecar). ``units_check`` False skips the check that
-    the object's size is plausible in metres."""
+    the object's size is plausible in metres.
+
+    The object is told from walls and other objects (``jsrte.scans.segment``): the one nearest
+    ``at`` (3,) if given, else the one most like ``shape`` (the class's proportions, see
+    :func:`class_shape`). Only its points give surface samples; everything else the sensor saw
+    (floor, walls, other objects) only bounds free space on the lines of sight, never where a
+    point of the object was seen (samples keep ``ray_margin_m`` from every object point)."""
     from jsrte.scans.io import load_scan, read_scan_info
     from jsrte.scans.preprocess import PrepareSettings, prepare_scan
     from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples
@@ -59,7 +86,7 @@ def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarra
         info = read_scan_info(path) if Path(path).suffix.lower() == ".ply" else None
     if viewpoints is None and info is not None and len(info.cameras):
         viewpoints = info.cameras
-    prepared = prepare_scan(cloud, rng=rng, up=up, viewpoints=viewpoints,
+    prepared = prepare_scan(cloud, rng=rng, up=up, viewpoints=viewpoints, shape=shape, at=at,
                             settings=PrepareSettings(units_check=units_check))
     with stage("query samples"):
         points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
@@ -75,7 +102,8 @@ def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarra
                     info={"input": "scan", "scan_points": len(cloud.points),
                           "object_points": len(prepared.points), "samples": len(sdf),
                           "ray_freespace_samples": n_rays,
-                          "floor_found": prepared.floor is not None},
+                          "floor_found": prepared.floor is not None,
+                          "segmentation": prepared.segmentation.to_json()},
                     n_refine_only=n_rays)
 
 
@@ -134,16 +162,20 @@ def read_query_file(path: str | Path) -> SdfQuery:
 
 def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
                viewpoints: np.ndarray | None = None, scan_settings: ScanSdf = ScanSdf(),
-               units_check: bool = True) -> SdfQuery:
+               units_check: bool = True, shape: ClassShape | None = None,
+               at: np.ndarray | None = None) -> SdfQuery:
     """Dispatch on the file: ``.npz`` query files (``jsrte prepare``; ``up`` overrides theirs) or
     SDF samples (``jsrte sample``); OBJ/OFF/STL/GLB complete meshes (up: ``up``
-    or +y); PLY/PCD/XYZ/PTS scans (point clouds or scan meshes, floor plane gives up)."""
+    or +y); PLY/PCD/XYZ/PTS scans (point clouds or scan meshes, floor plane gives up; the object
+    is the one nearest ``at`` (3,) or most like ``shape``: :func:`query_from_scan`)."""
     path = Path(path)
     if not path.exists():
         raise JsrteError("no such file", path)
     if path.is_dir():
         raise JsrteError("is a folder; give a scan, mesh or .npz file (fit-many fits a folder)", path)
     suffix = path.suffix.lower()
+    if at is not None and suffix not in SCAN_SUFFIXES:
+        raise JsrteError("--at picks an object in a scan; this input is not a scan (PLY/PCD/XYZ/PTS)", path)
     if suffix == ".npz" and is_query_file(path):
         query = read_query_file(path)
         if up is not None:
@@ -155,6 +187,6 @@ def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | N
         return query_from_mesh(load_mesh(path), rng=rng, up=up)
     if suffix in SCAN_SUFFIXES:
         return query_from_scan(path, rng=rng, up=up, viewpoints=viewpoints, settings=scan_settings,
-                               units_check=units_check)
+                               units_check=units_check, shape=shape, at=at)
     known = ", ".join((".npz",) + MESH_QUERY_SUFFIXES + SCAN_SUFFIXES)
     raise JsrteError(f"unsupported input {path.suffix!r} (use {known})", path)

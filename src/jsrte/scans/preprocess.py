@@ -14,9 +14,13 @@ import numpy as np
 
 from jsrte.errors import JsrteError
 from jsrte.scans.io import ScanCloud
+from jsrte.scans.segment import ClassShape, Segmentation, SegmentSettings, segment_objects
 from jsrte.timing import timed_stage
 
 UP_HINT = "pass the up axis explicitly with --up X,Y,Z"
+SEGMENT_SEED = 0
+"""Seed of the walls' RANSAC (apart from the caller's stream, so that the samples drawn after
+preprocessing do not depend on how many planes were tried)."""
 
 
 @dataclass(frozen=True)
@@ -26,7 +30,7 @@ class PrepareSettings:
     floor_distance_m: float = 0.02
     """RANSAC inlier distance of the floor plane."""
     floor_ransac_iterations: int = 1000
-    floor_candidates: int = 3
+    floor_candidates: int = 5
     """Planes tried, biggest first, until one is plausibly a floor (a big table top can hide
     more of the floor than it shows)."""
     floor_min_fraction: float = 0.05
@@ -43,11 +47,6 @@ class PrepareSettings:
     """With a given up axis, a plane this close to perpendicular to it is taken as the floor."""
     floor_clearance_m: float = 0.02
     """Points less than this high above the floor are removed (raised to 3x the floor noise)."""
-    cluster_eps_factor: float = 4.0
-    """DBSCAN radius, in units of the median nearest-neighbour spacing."""
-    cluster_min_points: int = 10
-    cluster_join_m: float = 0.1
-    """Clusters within this distance of the biggest one are parts of the object."""
     sor_neighbours: int = 20
     sor_std_ratio: float = 2.0
     """Statistical outlier removal: drop points whose mean neighbour distance exceeds the
@@ -110,6 +109,7 @@ class PreparedScan:
     up : (3,) float64, unit up axis (floor normal, or as given)
     floor : the floor found, or None
     index : (m,) int64, each point's index in the input cloud
+    segmentation : how the object was told from walls and other objects (None: not segmented)
     """
 
     points: np.ndarray
@@ -117,6 +117,7 @@ class PreparedScan:
     up: np.ndarray
     floor: Floor | None
     index: np.ndarray = field(repr=False)
+    segmentation: Segmentation | None = field(default=None, repr=False)
 
 
 # --- floor -----------------------------------------------------------------------------------
@@ -154,6 +155,7 @@ def segment_floor(
         raise JsrteError(f"no floor found: only {len(points)} points; {UP_HINT}")
     remaining = np.arange(len(points))
     reasons = []
+    walk_up = camera_plane_normal(viewpoints)
     for _ in range(settings.floor_candidates):
         if len(remaining) < 3:
             break
@@ -164,7 +166,7 @@ def segment_floor(
         if len(found) < 3:
             break
         normal, offset = _refit_plane(points, np.asarray(model[:3]), float(-model[3]), distance)
-        floor, reason = _as_floor(points, normal, offset, distance, settings)
+        floor, reason = _as_floor(points, normal, offset, distance, settings, walk_up=walk_up)
         if floor is not None:
             reason = _sensor_side_objection(floor, points, normals, viewpoints)
         if floor is not None and not reason:
@@ -207,9 +209,31 @@ def _sensor_side_objection(floor: Floor, points: np.ndarray, normals: np.ndarray
     return ""
 
 
+def camera_plane_normal(viewpoints: np.ndarray | None, *, min_spread_m: float = 0.15,
+                        max_tilt_ratio: float = 0.2) -> np.ndarray | None:
+    """Unit normal (3,) of the plane through four or more ``viewpoints`` (k, 3) when they lie
+    on one (a scan walked round at a steady height: the plane is level, its normal is the up
+    axis up to sign), else None: fewer than four (three always lie on a plane), spread across
+    less than ``min_spread_m`` (RMS), or off the plane by more than ``max_tilt_ratio`` of that."""
+    if viewpoints is None:
+        return None
+    viewpoints = np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3)
+    if len(viewpoints) < 4:
+        return None
+    _, singular, vt = np.linalg.svd(viewpoints - viewpoints.mean(0), full_matrices=False)
+    spread = singular[1] / np.sqrt(len(viewpoints))
+    if spread < min_spread_m or singular[2] > max_tilt_ratio * singular[1]:
+        return None
+    return vt[2]
+
+
 def _as_floor(points: np.ndarray, normal: np.ndarray, offset: float, distance: float,
-              s: PrepareSettings) -> tuple[Floor | None, str]:
-    """The plane as a Floor (normal towards the object) if plausible, else None and why."""
+              s: PrepareSettings, *, walk_up: np.ndarray | None = None) -> tuple[Floor | None, str]:
+    """The plane as a Floor (normal towards the object) if plausible, else None and why.
+
+    When the viewpoints were carried level (``walk_up`` (3,), the normal of their plane), the
+    floor is the plane within ``floor_up_tolerance_deg`` of level, whether or not it surrounds
+    the object (in a room, walls and other objects stand around it and hide the floor)."""
     height = points @ normal - offset
     inliers = np.abs(height) < distance
     if inliers.mean() < s.floor_min_fraction:
@@ -223,6 +247,11 @@ def _as_floor(points: np.ndarray, normal: np.ndarray, offset: float, distance: f
     if above < 0.5:
         normal, offset, height = -normal, -offset, -height
     obj = points[height > 3.0 * distance]
+    if walk_up is not None:
+        tilt = float(np.degrees(np.arccos(min(1.0, abs(float(walk_up @ normal))))))
+        if tilt > s.floor_up_tolerance_deg:
+            return None, f"a plane tilted {tilt:.0f} degrees from the level of the viewpoints"
+        return Floor(normal=normal, offset=float(offset), inliers=inliers), ""
     sectors = _sectors_around(points[inliers], obj, normal, s.floor_sectors)
     if sectors < s.floor_min_sectors:
         return None, (f"a plane that does not surround the object (a face of it; "
@@ -379,35 +408,6 @@ def median_spacing(points: np.ndarray) -> float:
     return float(np.median(distance[:, 1]))
 
 
-def object_cluster(points: np.ndarray, *, eps: float, min_points: int, join_m: float
-                   ) -> np.ndarray:
-    """Mask (n,) bool of the object in ``points`` (n, 3): the largest DBSCAN cluster (Open3D)
-    and every cluster that comes within ``join_m`` of it (parts of one object, such as a thin
-    column's base, split apart by sparse sampling); DBSCAN's noise points are dropped."""
-    import open3d as o3d
-    from pykdtree.kdtree import KDTree
-
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    labels = np.asarray(cloud.cluster_dbscan(eps, min_points, print_progress=False))
-    if labels.max(initial=-1) < 0:
-        return np.ones(len(points), dtype=bool)
-    sizes = np.bincount(labels[labels >= 0])
-    keep = labels == sizes.argmax()
-    pending = [k for k in np.argsort(-sizes) if k != sizes.argmax()]
-    grew = True
-    while grew and pending:
-        grew = False
-        tree = KDTree(points[keep])
-        for k in list(pending):
-            distance, _ = tree.query(points[labels == k], k=1)
-            if distance.min() <= join_m:
-                keep |= labels == k
-                pending.remove(k)
-                grew = True
-    return keep
-
-
 def check_units(
     points: np.ndarray, path: object = None, *,
     settings: PrepareSettings = PrepareSettings(), what: str = "the object",
@@ -441,25 +441,29 @@ def check_units(
 @timed_stage("floor and cleaning")
 def prepare_scan(
     cloud: ScanCloud, *, rng: np.random.Generator, up: np.ndarray | None = None,
-    viewpoints: np.ndarray | None = None,
-    settings: PrepareSettings = PrepareSettings(),
+    viewpoints: np.ndarray | None = None, shape: ClassShape | None = None, at: np.ndarray | None = None,
+    settings: PrepareSettings = PrepareSettings(), segment: SegmentSettings = SegmentSettings(),
 ) -> PreparedScan:
     """The paper's preprocessing of a real scan: the object's points with outward normals.
 
     Steps: floor plane (RANSAC, :func:`segment_floor`) whose normal is the up
     axis unless ``up`` is given (then a plane perpendicular to ``up`` is still removed as
-    floor if found); points within the floor clearance (or below the floor) removed; the
-    largest DBSCAN cluster kept with the clusters near it; statistical outlier removal;
-    hidden point removal from ``viewpoints`` (k, 3) if given; the object's size checked for
-    metres (:func:`check_units`, unless ``settings.units_check`` is False); normals kept from the file
-    (re-oriented towards the viewpoints that see them if viewpoints are known) or estimated.
+    floor if found); points within the floor clearance (or below the floor) removed; walls
+    removed and the object told from other objects (:func:`jsrte.scans.segment.segment_objects`:
+    the cluster nearest ``at``, else the one that matches ``shape`` best, else the largest,
+    with the fragments near it); statistical outlier removal; hidden point removal from
+    ``viewpoints`` (k, 3) if given; the object's size checked for metres (:func:`check_units`,
+    unless ``settings.units_check`` is False); normals kept from the file (re-oriented towards
+    the viewpoints that see them if viewpoints are known) or estimated.
 
     Parameters
     ----------
     cloud : the scan (metres)
-    rng : seeds the RANSAC
+    rng : seeds the floor's RANSAC (the walls' RANSAC has its own fixed seed)
     up : (3,) the up axis if known (skips relying on the floor for it)
     viewpoints : (k, 3) camera centres if known
+    shape : the class's proportions, to pick its object among several
+    at : (3,) pick the object nearest this point instead (scan units)
     """
     points = cloud.points
     index = np.arange(len(points))
@@ -474,9 +478,12 @@ def prepare_scan(
     if floor is not None:
         index = index[_above_floor(points, floor, settings)]
     _require(index, settings, cloud.path, "above the floor")
-    eps = settings.cluster_eps_factor * median_spacing(points[index])
-    index = index[object_cluster(points[index], eps=eps, min_points=settings.cluster_min_points,
-                                 join_m=settings.cluster_join_m)]
+    heights = floor.height(points[index]) if floor is not None else points[index] @ up_axis
+    if floor is None:
+        heights = heights - heights.min()
+    segmentation = segment_objects(points[index], heights, up_axis, rng=np.random.default_rng(SEGMENT_SEED),
+                                   shape=shape, at=at, settings=segment, path=cloud.path)
+    index = index[segmentation.index]
     index = index[remove_outliers(points[index], neighbours=settings.sor_neighbours,
                                   std_ratio=settings.sor_std_ratio)]
     if viewpoints is not None:
@@ -496,7 +503,8 @@ def prepare_scan(
                                             settings=settings)
     else:
         normals = cloud.normals[index].copy()
-    return PreparedScan(points=kept, normals=normals, up=up_axis, floor=floor, index=index)
+    return PreparedScan(points=kept, normals=normals, up=up_axis, floor=floor, index=index,
+                        segmentation=segmentation)
 
 
 def _floor_and_up(cloud: ScanCloud, up: np.ndarray | None, viewpoints: np.ndarray | None,

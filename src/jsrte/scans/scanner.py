@@ -192,12 +192,13 @@ def scan_mesh(
 
 def write_scan(
     scan: VirtualScan, ply_path: str | Path, *, seed: int | None = None,
-    mesh: str | Path | None = None,
+    mesh: str | Path | None = None, colors: np.ndarray | None = None,
 ) -> Path:
     """Write ``scan`` as a binary PLY with normals and colours, and ``<stem>.json`` beside it.
 
     Both files are written atomically. Object points are coloured ``OBJECT_COLOR``, floor
-    points ``FLOOR_COLOR``. Returns ``ply_path`` (the JSON is ``ply_path.with_suffix(".json")``).
+    points ``FLOOR_COLOR``, unless ``colors`` ((n, 3) uint8 RGB) are given. Returns
+    ``ply_path`` (the JSON is ``ply_path.with_suffix(".json")``).
     """
     import json
 
@@ -205,7 +206,9 @@ def write_scan(
 
     ply_path = Path(ply_path)
     json_path = ply_path.with_suffix(".json")
-    colors = np.where(scan.is_object[:, None], OBJECT_COLOR, FLOOR_COLOR) / 255.0
+    if colors is None:
+        colors = np.where(scan.is_object[:, None], OBJECT_COLOR, FLOOR_COLOR)
+    colors = np.asarray(colors, dtype=np.float64) / 255.0
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan.points))
     cloud.normals = o3d.utility.Vector3dVector(scan.normals)
     cloud.colors = o3d.utility.Vector3dVector(colors)
@@ -298,9 +301,10 @@ def _scene(vertices: np.ndarray, faces: np.ndarray, axis_xz: np.ndarray,
 
 
 def _cameras(centre: np.ndarray, sphere_radius: float, rng: np.random.Generator,
-             s: ScannerSettings) -> np.ndarray:
-    """Camera centres (k, 3) on an arc of azimuths around ``centre``, above the floor."""
-    start = float(rng.uniform(0.0, 2.0 * math.pi))
+             s: ScannerSettings, *, azimuth: float | None = None) -> np.ndarray:
+    """Camera centres (k, 3) on an arc of azimuths around ``centre``, above the floor; the arc is
+    centred on ``azimuth`` (radians, about +y from +x towards +z) or on a random one."""
+    start = float(rng.uniform(0.0, 2.0 * math.pi)) if azimuth is None else float(azimuth)
     arc = math.radians(s.arc_deg)
     offsets = np.linspace(-arc / 2, arc / 2, s.views) if s.views > 1 else np.zeros(1)
     half_fov = min(_half_fovs(s))
@@ -325,21 +329,66 @@ def _half_fovs(s: ScannerSettings) -> tuple[float, float]:
 def _render(scene: Any, camera: np.ndarray, target: np.ndarray, rng: np.random.Generator,
             s: ScannerSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Noisy hit points (m, 3), hit-the-object flags (m,) and outlier flags (m,) of one view."""
+    view = render_view(scene, camera, target, rng, s)
+    hit = view.hit
+    return view.points[hit], view.geometry[hit] == 0, view.outlier[hit]
+
+
+@dataclass(frozen=True)
+class DepthView:
+    """One depth image, pixel by pixel (row-major, ``height * width`` pixels).
+
+    Attributes
+    ----------
+    points : (p, 3) float64, the noisy point each pixel saw (NaN where the ray hit nothing)
+    depth : (p,) float64, noisy depth along the forward axis (inf: no hit)
+    geometry : (p,) int64, Open3D geometry id of the surface hit (-1: none)
+    outlier : (p,) bool, flying pixels (depth thrown off on purpose)
+    incidence : (p,) float64, |cos| of the angle between the ray and the surface hit
+    directions : (p, 3) float64, ray directions with unit forward component
+    """
+
+    points: np.ndarray
+    depth: np.ndarray
+    geometry: np.ndarray
+    outlier: np.ndarray
+    incidence: np.ndarray
+    directions: np.ndarray
+
+    @property
+    def hit(self) -> np.ndarray:
+        """(p,) bool, pixels whose ray hit a surface."""
+        return np.isfinite(self.depth)
+
+
+def render_view(scene: Any, camera: np.ndarray, target: np.ndarray, rng: np.random.Generator,
+                s: ScannerSettings) -> DepthView:
+    """Ray-cast one Kinect-like depth image of ``scene`` from ``camera`` looking at ``target``:
+    depth noise ``noise_scale * (a + b * depth**2)`` along each ray, and a fraction
+    ``outlier_fraction`` of the hits thrown off by ``outlier_depth_m`` (flying pixels)."""
     import open3d as o3d
 
     directions = _pixel_rays(camera, target, s)
     rays = np.concatenate([np.broadcast_to(camera, directions.shape), directions], axis=1)
     hits = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
-    depth = hits["t_hit"].numpy().astype(np.float64)  # along a ray of unit forward component
-    hit = np.isfinite(depth)
-    depth, directions = depth[hit], directions[hit]
-    is_object = hits["geometry_ids"].numpy()[hit] == 0
+    full = hits["t_hit"].numpy().astype(np.float64)  # along a ray of unit forward component
+    hit = np.isfinite(full)
+    geometry = np.where(hit, hits["geometry_ids"].numpy().astype(np.int64), -1)
+    normals = hits["primitive_normals"].numpy().astype(np.float64)
+    unit = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    incidence = np.abs(np.einsum("ij,ij->i", normals, unit))
+    depth = full[hit]
     sigma = s.noise_scale * (s.noise_a_m + s.noise_b_per_m * depth**2)
     depth = depth + rng.normal(size=depth.shape) * sigma
     is_outlier = rng.random(depth.shape) < s.outlier_fraction
     jump = rng.uniform(*s.outlier_depth_m, size=int(is_outlier.sum()))
     depth[is_outlier] += jump * rng.choice([-1.0, 1.0], size=jump.shape)
-    return camera + depth[:, None] * directions, is_object, is_outlier
+    full[hit] = depth
+    outlier = np.zeros(len(full), dtype=bool)
+    outlier[hit] = is_outlier
+    points = np.where(hit[:, None], camera + np.where(hit, full, 0.0)[:, None] * directions, np.nan)
+    return DepthView(points=points, depth=full, geometry=geometry, outlier=outlier,
+                     incidence=np.where(hit, incidence, 0.0), directions=directions)
 
 
 def _pixel_rays(camera: np.ndarray, target: np.ndarray, s: ScannerSettings) -> np.ndarray:

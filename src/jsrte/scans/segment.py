@@ -1,0 +1,529 @@
+"""Segmentation of a scan that holds more than the object: walls, other objects, clutter.
+
+Above the floor (found by :func:`jsrte.scans.preprocess.segment_floor`), in order:
+
+1. **Walls**: large vertical planes (Open3D RANSAC, repeated) with everything else on one
+   side of them are removed.
+2. **Clusters**: DBSCAN (Open3D) of what is left.
+3. **Join**: clusters closer than ``join_m`` are merged when one is a small fragment of the
+   other (a chair's legs cut off its seat by sparse sampling) or when the merge matches the
+   class as well as the bigger one alone (a chair's back on thin posts).
+4. **Split**: a cluster that holds two touching objects is cut in two at its narrowest neck
+   (normalized cut of its neighbour graph); the split is kept when one of its parts matches
+   the class better than the whole (:func:`class_score`), and its parts are cut again.
+5. **Candidates**: clusters too small, flat, thin or big to be an object are dropped; the
+   others are ranked by how well their proportions and height profile match the class
+   (:class:`ClassShape`, from the model), or by their distance to a point given by the user.
+
+Every candidate, chosen or not, is described (centre, extent, points, score, why rejected) so
+that the fit records what it chose. Lengths in metres, heights above the floor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from jsrte.errors import JsrteError
+
+PROFILE_BINS = 8
+"""Bins of a height profile (share of the points at each fraction of the object's height)."""
+PROFILE_WEIGHT = 0.2
+"""Weight of the height profiles' L1 distance in :func:`class_score` (a scan sees a profile
+skewed by its views, so the proportions weigh more)."""
+
+
+@dataclass(frozen=True)
+class ClassShape:
+    """What segmentation knows of the class: its proportions, whatever the size.
+
+    Attributes
+    ----------
+    name : the class's name (for messages)
+    aspect : height over bounding-sphere radius of the class's mean shape
+    profile : (PROFILE_BINS,) share of the mean shape's surface at each fraction of its height
+        (None: proportions only)
+    """
+
+    name: str
+    aspect: float
+    profile: np.ndarray | None = None
+
+    @classmethod
+    def of_mesh(cls, name: str, vertices: np.ndarray, samples: np.ndarray) -> ClassShape:
+        """From a mesh standing upright (+y up): its ``vertices`` (n, 3) and surface ``samples`` (m, 3)."""
+        from jsrte.metrics.surface import bounding_sphere
+
+        height = float(np.ptp(vertices[:, 1]))
+        radius = bounding_sphere(vertices)[1]
+        heights = samples[:, 1] - vertices[:, 1].min()
+        return cls(name=name, aspect=height / radius, profile=height_profile(heights, height))
+
+
+@dataclass(frozen=True)
+class SegmentSettings:
+    """Parameters of the segmentation; lengths in metres."""
+
+    wall_distance_m: float = 0.03
+    """RANSAC inlier distance of a wall plane."""
+    wall_ransac_iterations: int = 1000
+    wall_max_planes: int = 8
+    """Planes tried, biggest first (walls and other planes), until one holds too few points."""
+    wall_min_points: int = 300
+    wall_band_max_m: float = 0.1
+    """Points within three robust standard deviations of a wall's plane (at most this far) are
+    the wall's: far walls are seen with centimetres of depth noise."""
+    wall_vertical_tolerance_deg: float = 10.0
+    """A wall's normal is this close to horizontal."""
+    wall_min_span_m: float = 1.2
+    """A wall's points span this far, across or up (2nd to 98th percentile): bigger than the
+    face of an object of a room."""
+    wall_one_side: float = 0.95
+    """At least this share of the other points (off the plane) lie on one side of a wall."""
+    cluster_eps_factor: float = 4.0
+    """DBSCAN radius, in units of the median nearest-neighbour spacing."""
+    cluster_min_points: int = 10
+    split_depth: int = 2
+    """A cluster is split at most this many times over (up to four touching objects)."""
+    cut_samples: int = 2000
+    cut_neighbours: int = 10
+    """The normalized cut's graph: this many points, each joined to this many nearest."""
+    cut_max: float = 0.02
+    """Only a cut of at most this value is a neck between two objects (a cut through one
+    object's surface costs more)."""
+    split_margin: float = 0.1
+    """A split is kept when a part's class score beats the whole's by this much."""
+    size_weight: float = 0.1
+    """Candidates are ranked by class score plus this times log(most points / their points):
+    of two shapes alike, the bigger is the object (not a shred of another)."""
+    join_m: float = 0.1
+    """Clusters closer than this may be one object."""
+    fragment_share: float = 0.25
+    """A cluster with less than this share of a neighbour's points is a fragment of it."""
+    join_slack: float = 0.05
+    """Two big clusters merge when the merge's class score is at most the bigger's plus this."""
+    min_points: int = 50
+    """Fewer points than this: too few to fit."""
+    shred_points: int = 300
+    """Clusters of fewer points are shreds: joined to a neighbour if near one, never cut."""
+    min_height_m: float = 0.15
+    """Lower than this (2nd to 98th percentile of the heights above the floor): too flat."""
+    min_width_m: float = 0.08
+    """Narrower than this across (largest horizontal side): too thin."""
+    max_height_m: float = 2.5
+    max_width_m: float = 3.0
+    """Taller or wider than this: too big to be an object of a room."""
+
+
+@dataclass
+class Candidate:
+    """A cluster that may be the object.
+
+    Attributes
+    ----------
+    index : (m,) int64 indices of its points in the segmented cloud
+    score : class score (lower matches better; None without a class)
+    rejected : why it cannot be the object ("" when it can)
+    """
+
+    index: np.ndarray
+    score: float | None = None
+    rejected: str = ""
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Segmentation:
+    """The result: the chosen object, the candidates, what was removed.
+
+    Attributes
+    ----------
+    index : (m,) int64 indices of the chosen object's points in the segmented cloud
+    chosen : position of the chosen candidate in ``candidates``
+    candidates : every candidate, the chosen one included
+    walls : the walls removed (normal, offset, points)
+    removed : points removed as walls, as DBSCAN noise, in small clusters
+    how : how the object was chosen ("class", "at", "largest")
+    """
+
+    index: np.ndarray
+    chosen: int
+    candidates: list[Candidate]
+    walls: list[dict[str, Any]]
+    removed: dict[str, int]
+    how: str
+
+    def to_json(self) -> dict[str, Any]:
+        """fit.json's ``segmentation`` block."""
+        return {"chosen": self.chosen, "chosen_by": self.how, "walls": self.walls, "removed": self.removed,
+                "candidates": [c.summary | {"score": None if c.score is None else round(c.score, 4),
+                                            "rejected": c.rejected, "chosen": k == self.chosen}
+                               for k, c in enumerate(self.candidates)]}
+
+
+def height_profile(heights: np.ndarray, top: float) -> np.ndarray:
+    """(PROFILE_BINS,) share of ``heights`` (n,) in each equal band of ``[0, top]``."""
+    counts = np.histogram(np.clip(heights / max(top, 1e-9), 0.0, 1.0), bins=PROFILE_BINS,
+                          range=(0.0, 1.0))[0].astype(np.float64)
+    return counts / max(counts.sum(), 1.0)
+
+
+def class_score(points: np.ndarray, heights: np.ndarray, shape: ClassShape | None) -> float | None:
+    """How unlike the class ``points`` (n, 3) with ``heights`` (n,) above the floor are (lower is
+    better; None without a class): |log| of the ratio of aspects (height over bounding-sphere
+    radius) plus ``PROFILE_WEIGHT`` times the L1 distance of the height profiles."""
+    from jsrte.metrics.surface import bounding_sphere
+
+    if shape is None:
+        return None
+    top = float(np.percentile(heights, 98))
+    radius = bounding_sphere(points)[1]
+    score = abs(float(np.log(max(top, 1e-6) / max(radius, 1e-6) / shape.aspect)))
+    if shape.profile is not None:
+        score += PROFILE_WEIGHT * float(np.abs(height_profile(heights, top) - shape.profile).sum())
+    return score
+
+
+def segment_objects(
+    points: np.ndarray, heights: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
+    shape: ClassShape | None = None, at: np.ndarray | None = None,
+    settings: SegmentSettings = SegmentSettings(), path: object = None,
+) -> Segmentation:
+    """Find the object among ``points`` (n, 3) standing on the floor (``heights`` (n,) above it,
+    ``up`` (3,) its unit normal).
+
+    The object is the candidate nearest ``at`` (3,) when given, else the one that matches
+    ``shape`` best, else the one with the most points. Raises ``JsrteError`` (naming ``path``)
+    when no candidate is left, saying what was removed.
+    """
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    is_wall, walls = find_walls(points, up, rng=rng, settings=settings)
+    kept = np.flatnonzero(~is_wall)
+    removed = {"walls": int(is_wall.sum())}
+    if len(kept) < settings.min_points:
+        raise JsrteError(f"no object left after segmentation: {len(walls)} wall(s) removed "
+                         f"({removed['walls']} points), {len(kept)} points left", path)
+    labels = _dbscan(points[kept], settings.cluster_eps_factor * _spacing(points[kept]), settings.cluster_min_points)
+    removed["dbscan_noise"] = int((labels < 0).sum())
+    clusters = [kept[labels == k] for k in range(labels.max(initial=-1) + 1)]
+    clusters = _join(clusters, points, heights, shape, settings)
+    clusters = [part for c in clusters for part in _split(c, points, heights, shape, settings)]
+    candidates = [_candidate(c, points, heights, up, shape, settings) for c in clusters]
+    candidates.sort(key=lambda c: -len(c.index))
+    removed["small_clusters"] = int(sum(len(c.index) for c in candidates if c.rejected.startswith("too few")))
+    chosen, how = _choose(candidates, points, at, settings.size_weight)
+    if chosen is None:
+        reasons = "; ".join(sorted({c.rejected for c in candidates})) or "no cluster"
+        raise JsrteError(f"no object left after segmentation: {len(walls)} wall(s) removed "
+                         f"({removed['walls']} points), {removed['dbscan_noise']} scattered points, "
+                         f"{len(candidates)} cluster(s) rejected ({reasons})", path)
+    return Segmentation(index=candidates[chosen].index, chosen=chosen, candidates=candidates, walls=walls,
+                        removed=removed, how=how)
+
+
+def find_walls(points: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
+               settings: SegmentSettings = SegmentSettings()) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """Walls among ``points`` (n, 3): planes found by RANSAC (Open3D), biggest first, that are
+    vertical (``up`` (3,)), span more than ``wall_min_span_m`` and have (almost) every other
+    point on one side. Returns the wall mask (n,) bool and each wall's description."""
+    import open3d as o3d
+
+    from jsrte.scans.preprocess import _refit_plane
+
+    s = settings
+    is_wall = np.zeros(len(points), dtype=bool)
+    walls: list[dict[str, Any]] = []
+    remaining = np.arange(len(points))
+    across_tolerance = np.sin(np.radians(s.wall_vertical_tolerance_deg))
+    for _ in range(s.wall_max_planes):
+        if len(remaining) < s.wall_min_points:
+            break
+        o3d.utility.random.seed(int(rng.integers(2**31)))
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[remaining]))
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            model, found = cloud.segment_plane(s.wall_distance_m, 3, s.wall_ransac_iterations)
+        if len(found) < s.wall_min_points:
+            break
+        normal, offset = _refit_plane(points[remaining], np.asarray(model[:3]), float(-model[3]), s.wall_distance_m)
+        distance = points @ normal - offset
+        near = np.abs(distance[remaining]) < s.wall_distance_m
+        if abs(float(normal @ up)) < across_tolerance and _is_wall(points[remaining[near]], distance, normal,
+                                                                   up, ~is_wall, s):
+            plane = np.abs(distance) < _wall_band(distance, s)
+            is_wall |= plane
+            side = np.sign(np.median(distance[~plane & (np.abs(distance) > 3 * s.wall_distance_m)]))
+            walls.append({"normal": (side * normal).tolist(), "offset": float(side * offset),
+                          "points": int(plane.sum())})
+        remaining = remaining[~near]
+    return is_wall, walls
+
+
+def _wall_band(distance: np.ndarray, s: SegmentSettings) -> float:
+    """Half-width (m) of the band removed around a wall: three times the robust std of the
+    points' signed ``distance`` (n,) to it near it (far walls are seen with more depth noise),
+    at least ``wall_distance_m`` and at most ``wall_band_max_m``."""
+    near = distance[np.abs(distance) < s.wall_band_max_m]
+    if not len(near):
+        return s.wall_distance_m
+    sigma = 1.4826 * float(np.median(np.abs(near - np.median(near))))
+    return float(np.clip(3.0 * sigma, s.wall_distance_m, s.wall_band_max_m))
+
+
+def _is_wall(inliers: np.ndarray, distance: np.ndarray, normal: np.ndarray, up: np.ndarray,
+             others: np.ndarray, s: SegmentSettings) -> bool:
+    """Whether a vertical plane's ``inliers`` (m, 3) make a wall: wide or tall enough, and the
+    points (``others`` (n,) mask) off it (by signed ``distance`` (n,)) on one side of it."""
+    across = np.cross(up, normal)
+    across /= np.linalg.norm(across)
+    width = np.ptp(np.percentile(inliers @ across, [2, 98]))
+    height = np.ptp(np.percentile(inliers @ up, [2, 98]))
+    if max(width, height) < s.wall_min_span_m:
+        return False
+    off = distance[others & (np.abs(distance) > 3 * s.wall_distance_m)]
+    if not len(off):
+        return True
+    above = float((off > 0).mean())
+    return max(above, 1.0 - above) >= s.wall_one_side
+
+
+def _spacing(points: np.ndarray) -> float:
+    from jsrte.scans.preprocess import median_spacing
+
+    return median_spacing(points)
+
+
+def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
+    """DBSCAN labels (n,) of ``points`` (n, 3) by Open3D (-1: noise)."""
+    import open3d as o3d
+
+    if len(points) < min_points or eps <= 0:
+        return np.full(len(points), -1)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        return np.asarray(cloud.cluster_dbscan(eps, min_points, print_progress=False))
+
+
+def _split(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
+           s: SegmentSettings, depth: int = 0) -> list[np.ndarray]:
+    """``cluster`` (indices) or its parts, split by the normalized cut of its neighbour graph
+    (:func:`normalized_cut`: the narrowest neck between two bodies, where touching objects
+    meet). A split is kept when one part matches the class better than the whole by
+    ``split_margin``, or when the whole is too big to be an object; each part is split
+    again, ``split_depth`` deep."""
+    if len(cluster) < 2 * s.shred_points or depth >= s.split_depth:
+        return [cluster]
+    whole = class_score(points[cluster], heights[cluster], shape)
+    too_big = _too_big(points[cluster], heights[cluster], s)
+    if whole is None and not too_big:
+        return [cluster]
+    side, value = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours)
+    parts = [cluster[side], cluster[~side]]
+    if value > s.cut_max or min(len(p) for p in parts) < s.shred_points:
+        return [cluster]
+    best = min((class_score(points[p], heights[p], shape) or 0.0) for p in parts)
+    if not (too_big or (whole is not None and best < whole - s.split_margin)):
+        return [cluster]
+    return [q for p in parts for q in _split(p, points, heights, shape, s, depth + 1)]
+
+
+def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int = 10,
+                   seed: int = 0) -> tuple[np.ndarray, float]:
+    """Two-way normalized cut (Shi and Malik 2000) of ``points`` (n, 3): mask (n,) of one side,
+    and the cut's value (0: two parts apart; about 2 / neighbours when cut through a surface).
+
+    Up to ``samples`` points (a fixed random subset) make a symmetric k-nearest-neighbour graph
+    with Gaussian weights of the distance; the Fiedler vector of its normalized Laplacian
+    (scipy) is cut at the threshold of lowest normalized cut; every point takes the side of its
+    nearest sample.
+    """
+    from pykdtree.kdtree import KDTree
+    from scipy.sparse import coo_matrix, diags
+    from scipy.sparse.linalg import eigsh
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    pick = np.random.default_rng(seed).permutation(len(points))[:samples]
+    sub = points[np.sort(pick)]
+    k = min(neighbours + 1, len(sub))
+    distance, near = KDTree(sub).query(sub, k=k)
+    sigma = float(np.median(distance[:, 1:])) or 1e-6
+    rows = np.repeat(np.arange(len(sub)), k - 1)
+    weight = np.exp(-(distance[:, 1:].reshape(-1) / sigma) ** 2)
+    graph = coo_matrix((weight, (rows, near[:, 1:].reshape(-1))), shape=(len(sub), len(sub))).tocsr()
+    graph = graph.maximum(graph.T)
+    degree = np.asarray(graph.sum(axis=1)).reshape(-1) + 1e-12
+    scale = diags(1.0 / np.sqrt(degree))
+    normalized = scale @ graph @ scale
+    try:
+        start = np.random.default_rng(seed).uniform(0.5, 1.5, size=len(sub))
+        _, vectors = eigsh(normalized, k=2, which="LA", tol=1e-4, maxiter=5000, v0=start)
+    except Exception:  # no convergence: no cut
+        return np.ones(len(points), dtype=bool), float("inf")
+    fiedler = vectors[:, 0] / np.sqrt(degree)
+    best, best_cut = None, np.inf
+    for threshold in np.quantile(fiedler, np.linspace(0.05, 0.95, 19)):
+        side = fiedler > threshold
+        cut = float(graph[side][:, ~side].sum())
+        value = cut / degree[side].sum() + cut / degree[~side].sum() if side.any() and (~side).any() else np.inf
+        if value < best_cut:
+            best, best_cut = side, value
+    if best is None:
+        return np.ones(len(points), dtype=bool), float("inf")
+    _, nearest = KDTree(sub).query(points, k=1)
+    return best[nearest], best_cut
+
+
+def _too_big(points: np.ndarray, heights: np.ndarray, s: SegmentSettings) -> bool:
+    return float(np.percentile(heights, 98)) > s.max_height_m or _width(points, heights) > s.max_width_m
+
+
+def _width(points: np.ndarray, heights: np.ndarray) -> float:
+    """Largest horizontal side (m) of the points' box (2nd to 98th percentile), about the up
+    axis estimated from how ``heights`` vary with ``points``."""
+    flat = _flat(points, heights)
+    return float(np.ptp(np.percentile(flat, [2, 98], axis=0), axis=0).max()) if len(flat) else 0.0
+
+
+def _flat(points: np.ndarray, heights: np.ndarray) -> np.ndarray:
+    """(n, 2) horizontal coordinates of ``points`` (n, 3) (principal axes of the floor plane)."""
+    centred = points - points.mean(0)
+    if len(points) < 4:
+        return centred[:, :2]
+    up = np.linalg.lstsq(np.column_stack([centred, np.ones(len(points))]), heights, rcond=None)[0][:3]
+    up = up / max(np.linalg.norm(up), 1e-12)
+    basis = np.linalg.svd(up[None, :])[2][1:]
+    return centred @ basis.T
+
+
+def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
+          s: SegmentSettings) -> list[np.ndarray]:
+    """Merge clusters closer than ``join_m``: clusters of fewer than ``shred_points`` points
+    into the nearest big one (the largest cluster is big whatever its size); then big ones,
+    closest pairs first, a fragment (less than ``fragment_share`` of the other's points)
+    always, two big ones when the merge matches the class as well as the bigger alone (within
+    ``join_slack``; always without a class)."""
+    clusters = sorted((c for c in clusters if len(c)), key=len, reverse=True)
+    if not clusters:
+        return []
+    big = [c for k, c in enumerate(clusters) if k == 0 or len(c) >= s.shred_points]  # the largest at least
+    small = [c for k, c in enumerate(clusters) if k > 0 and len(c) < s.shred_points]
+    big = _attach_small(big, small, points, s.join_m)
+    gaps = np.full((len(big), len(big)), np.inf)
+    for i in range(len(big)):
+        for j in range(i + 1, len(big)):
+            gaps[i, j] = gaps[j, i] = _gap(points[big[i]], points[big[j]], s.join_m)
+    alive = list(range(len(big)))
+    refused: set[tuple[int, int]] = set()
+    while True:
+        pairs = sorted((gaps[i, j], i, j) for i in alive for j in alive
+                       if i < j and gaps[i, j] <= s.join_m and (i, j) not in refused)
+        if not pairs:
+            return [big[k] for k in alive]
+        _, i, j = pairs[0]
+        bigger, smaller = (i, j) if len(big[i]) >= len(big[j]) else (j, i)
+        union = np.concatenate([big[bigger], big[smaller]])
+        if len(big[smaller]) < s.fragment_share * len(big[bigger]) or _merge_matches(
+                big[bigger], union, points, heights, shape, s):
+            big[i] = union
+            gaps[i] = gaps[:, i] = np.minimum(gaps[i], gaps[j])
+            gaps[i, i] = np.inf
+            alive.remove(j)
+            refused = {pair for pair in refused if i not in pair}
+        else:
+            refused.add((i, j))
+
+
+def _attach_small(big: list[np.ndarray], small: list[np.ndarray], points: np.ndarray, join_m: float
+                  ) -> list[np.ndarray]:
+    """``big`` clusters each with the ``small`` ones whose nearest big cluster is within ``join_m``."""
+    from pykdtree.kdtree import KDTree
+
+    if not small:
+        return big
+    owner = np.concatenate([np.full(len(c), k) for k, c in enumerate(big)])
+    tree = KDTree(np.ascontiguousarray(points[np.concatenate(big)]))
+    grown = [[c] for c in big]
+    for c in small:
+        distance, nearest = tree.query(np.ascontiguousarray(points[c]), k=1)
+        if distance.min() <= join_m:
+            grown[int(owner[nearest[int(np.argmin(distance))]])].append(c)
+    return [np.concatenate(parts) for parts in grown]
+
+
+def _gap(a: np.ndarray, b: np.ndarray, join_m: float) -> float:
+    """Distance (m) between point sets ``a`` and ``b`` (inf when their boxes are farther than ``join_m``)."""
+    from pykdtree.kdtree import KDTree
+
+    if _box_gap(a, b) > join_m:
+        return float("inf")
+    small, large = (a, b) if len(a) <= len(b) else (b, a)
+    return float(KDTree(np.ascontiguousarray(large)).query(np.ascontiguousarray(small), k=1)[0].min())
+
+
+def _merge_matches(bigger: np.ndarray, union: np.ndarray, points: np.ndarray, heights: np.ndarray,
+                   shape: ClassShape | None, s: SegmentSettings) -> bool:
+    if _too_big(points[union], heights[union], s):
+        return False
+    alone = class_score(points[bigger], heights[bigger], shape)
+    if alone is None:
+        return True
+    together = class_score(points[union], heights[union], shape)
+    return together is not None and together <= alone + s.join_slack
+
+
+def _box_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """Gap (m) between the bounding boxes of point sets ``a`` and ``b``: a lower bound of their distance."""
+    gap = np.maximum(0.0, np.maximum(a.min(0) - b.max(0), b.min(0) - a.max(0)))
+    return float(np.linalg.norm(gap))
+
+
+def _candidate(index: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+               shape: ClassShape | None, s: SegmentSettings) -> Candidate:
+    """A cluster described and judged: too few points, too flat, thin or big, or a candidate."""
+    p, h = points[index], heights[index]
+    top = float(np.percentile(h, 98)) if len(h) else 0.0
+    tall = top - float(np.percentile(h, 2)) if len(h) else 0.0
+    width = _width(p, h)
+    summary = {"points": int(len(index)), "centre": ((p.min(0) + p.max(0)) / 2.0).round(4).tolist(),
+               "height_m": round(top, 3), "width_m": round(width, 3)}
+    if len(index) < s.min_points:
+        rejected = f"too few points ({len(index)} < {s.min_points})"
+    elif tall < s.min_height_m:
+        rejected = f"too flat ({tall:.2f} m tall < {s.min_height_m} m)"
+    elif width < s.min_width_m:
+        rejected = f"too thin ({width:.2f} m across < {s.min_width_m} m)"
+    elif top > s.max_height_m or width > s.max_width_m:
+        rejected = f"too big ({top:.2f} m tall, {width:.2f} m across)"
+    else:
+        rejected = ""
+    score = class_score(p, h, shape) if len(index) else None
+    return Candidate(index=index, score=score, rejected=rejected, summary=summary)
+
+
+def _choose(candidates: list[Candidate], points: np.ndarray, at: np.ndarray | None, size_weight: float
+            ) -> tuple[int | None, str]:
+    """Position of the object among ``candidates`` and how it was chosen: nearest ``at``; else
+    lowest class score plus ``size_weight`` log(most points / its points); else most points."""
+    from pykdtree.kdtree import KDTree
+
+    if at is not None:
+        sized = [k for k, c in enumerate(candidates) if len(c.index) >= 4]
+        if not sized:
+            return None, "at"
+        query = np.asarray(at, dtype=np.float64).reshape(1, 3)
+        distance = [float(KDTree(np.ascontiguousarray(points[candidates[k].index])).query(query, k=1)[0][0])
+                    for k in sized]
+        for k, d in zip(sized, distance, strict=True):
+            candidates[k].summary["distance_to_at_m"] = round(d, 4)
+        return sized[int(np.argmin(distance))], "at"
+    valid = [k for k, c in enumerate(candidates) if not c.rejected]
+    if not valid:
+        return None, "class"
+    if all(candidates[k].score is not None for k in valid):
+        most = max(len(candidates[k].index) for k in valid)
+        rank = {k: candidates[k].score + size_weight * float(np.log(most / len(candidates[k].index))) for k in valid}
+        for k in valid:
+            candidates[k].summary["rank"] = round(rank[k], 4)
+        return min(valid, key=rank.__getitem__), "class"
+    return max(valid, key=lambda k: len(candidates[k].index)), "largest"

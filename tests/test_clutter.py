@@ -1,0 +1,262 @@
+"""Rooms: the room scanner, wall removal, object segmentation and free space among clutter."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import trimesh
+
+from cli_runner import run_cli
+from jsrte.errors import JsrteError
+from jsrte.scans.io import ScanCloud
+from jsrte.scans.preprocess import camera_plane_normal, prepare_scan, segment_floor
+from jsrte.scans.scanner import ScannerSettings, scan_mesh
+from jsrte.scans.scene import FLOOR_LABEL, WALL_LABEL, SceneSettings, read_room_labels, scan_room, write_room
+from jsrte.scans.segment import ClassShape, find_walls, normalized_cut, segment_objects
+from test_scans import stand_in_chair
+
+SMALL = SceneSettings(scanner=replace(SceneSettings().scanner, width=120, height=90), walls=(2, 2),
+                      wall_gap_m=(0.2, 0.3), neighbour_gap_m=(0.3, 0.5), mixed_pixel_fraction=0.1)
+"""Two walls, a box and a table well apart from the chair (one cluster each)."""
+
+
+def box(size: tuple[float, float, float]) -> trimesh.Trimesh:
+    mesh = trimesh.creation.box(size)
+    mesh.apply_translation([0.0, size[1] / 2.0, 0.0])
+    return mesh
+
+
+def table() -> trimesh.Trimesh:
+    """A table (top and four legs) 0.75 m tall, standing on y = 0."""
+    move = trimesh.transformations.translation_matrix
+    parts = [trimesh.creation.box([1.0, 0.04, 0.6], transform=move([0, 0.73, 0]))]
+    parts += [trimesh.creation.box([0.05, 0.71, 0.05], transform=move([x, 0.355, z]))
+              for x in (-0.45, 0.45) for z in (-0.25, 0.25)]
+    return trimesh.util.concatenate(parts)
+
+
+def chair_shape() -> ClassShape:
+    chair = stand_in_chair()
+    return ClassShape.of_mesh("chair", chair.vertices, chair.sample(5000, seed=0))
+
+
+@pytest.fixture(scope="module")
+def room():
+    settings = replace(SMALL, first_neighbour_gap_m=(0.3, 0.4))
+    others = [("box", box((0.4, 0.35, 0.5)), "box"), ("table", table(), "test")]
+    return scan_room(stand_in_chair(), rng=np.random.default_rng(7), settings=settings, target_kind="chair",
+                     others=others)
+
+
+@pytest.fixture(scope="module")
+def prepared_floor(room):
+    scan = room.scan
+    floor = segment_floor(scan.points, normals=scan.normals, viewpoints=scan.cameras, rng=np.random.default_rng(0))
+    above = np.flatnonzero(floor.height(scan.points) > 0.03)
+    return floor, above
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    return len(np.intersect1d(a, b)) / len(np.union1d(a, b))
+
+
+# --- the room scanner ------------------------------------------------------------------------
+
+
+def test_room_holds_every_object_with_its_truth(room):
+    scan = room.scan
+    assert [o.kind for o in room.objects] == ["chair", "box", "table"] and len(room.walls) == 2
+    for k, obj in enumerate(room.objects):
+        seen = scan.points[(room.labels == k) & ~scan.is_outlier]
+        assert len(seen) > 200, obj.kind
+        surface = trimesh.Trimesh(obj.scan_from_mesh.apply(obj.mesh.vertices), obj.mesh.faces)
+        distance = np.abs(trimesh.proximity.signed_distance(surface, seen[:400]))
+        assert np.median(distance) < 0.01, obj.kind  # depth noise only
+        assert (seen @ scan.up - scan.floor_offset).min() > -0.05  # standing on the floor
+    for normal, offset in zip(room.walls[:, :3], room.walls[:, 3], strict=True):
+        on_wall = scan.points[room.labels == WALL_LABEL]
+        assert (np.abs(on_wall @ normal - offset) < 0.1).any()
+        assert abs(normal @ scan.up) < 1e-6  # vertical
+        # every camera and every object point on the room's side
+        assert (scan.cameras @ normal - offset > 0).all()
+        assert (scan.points[room.labels >= 0] @ normal - offset > -0.05).all()
+
+
+def test_room_objects_do_not_overlap_and_the_first_is_close(room):
+    def footprint(k: int) -> np.ndarray:
+        obj = room.objects[k]
+        flat = obj.scan_from_mesh.apply(obj.mesh.sample(3000, seed=k))
+        return flat - np.outer(flat @ room.scan.up, room.scan.up)
+
+    from scipy.spatial import cKDTree
+
+    gap = cKDTree(footprint(0)).query(footprint(1))[0].min()
+    assert 0.29 < gap < 0.41  # first_neighbour_gap_m, horizontally
+
+
+def test_room_cameras_walk_level_so_the_floor_is_found(room):
+    scan = room.scan
+    walk_up = camera_plane_normal(scan.cameras)
+    assert walk_up is not None and abs(walk_up @ scan.up) > np.cos(np.radians(6))
+    floor = segment_floor(scan.points, normals=scan.normals, viewpoints=scan.cameras, rng=np.random.default_rng(0))
+    assert floor.normal @ scan.up > np.cos(np.radians(1)) and floor.offset == pytest.approx(scan.floor_offset, abs=0.01)
+    assert camera_plane_normal(scan.cameras[:3]) is None  # three points always lie on a plane
+
+
+def test_same_seed_same_room():
+    settings = replace(SMALL, others=(1, 1), other_kinds=("box",))
+    a, b = (scan_room(stand_in_chair(), rng=np.random.default_rng(7), settings=settings) for _ in range(2))
+    assert np.array_equal(a.scan.points, b.scan.points) and np.array_equal(a.labels, b.labels)
+
+
+def test_write_room_writes_the_truth(tmp_path, room):
+    ply = write_room(room, tmp_path / "room", seed=7)
+    scene = json.loads((tmp_path / "room" / "scene.json").read_text())
+    assert [o["class"] for o in scene["objects"]] == ["chair", "box", "table"]
+    assert scene["objects"][0]["target"] and len(scene["walls"]) == 2 and len(scene["cameras"]) == 4
+    for entry, obj in zip(scene["objects"], room.objects, strict=True):
+        assert (tmp_path / "room" / entry["mesh"]).is_file()
+        assert entry["scan_from_mesh"]["scale"] == pytest.approx(obj.scan_from_mesh.s)
+    labels = read_room_labels(ply)
+    assert np.array_equal(labels, room.labels)
+    info = json.loads(ply.with_suffix(".json").read_text())
+    assert len(info["cameras"]) == 4 and info["n_object_points"] == int((room.labels == 0).sum())
+
+
+# --- segmentation ----------------------------------------------------------------------------
+
+
+def test_walls_are_found_and_only_walls(room, prepared_floor):
+    floor, above = prepared_floor
+    is_wall, walls = find_walls(room.scan.points[above], floor.normal, rng=np.random.default_rng(0))
+    truth = room.labels[above] == WALL_LABEL
+    assert len(walls) >= 1
+    assert is_wall[truth].mean() > 0.85
+    assert (room.labels[above][is_wall] >= 0).sum() < 0.01 * (room.labels[above] >= 0).sum()
+
+
+def test_segmentation_picks_the_chair_by_its_class(room, prepared_floor):
+    floor, above = prepared_floor
+    points = room.scan.points[above]
+    result = segment_objects(points, floor.height(points), floor.normal, rng=np.random.default_rng(0),
+                             shape=chair_shape())
+    truth = np.flatnonzero(room.labels[above] == 0)
+    assert iou(result.index, truth) > 0.9
+    assert result.how == "class" and len(result.candidates) >= 3
+    record = result.to_json()
+    assert record["candidates"][record["chosen"]]["chosen"] and len(record["walls"]) >= 1
+    assert sum(c["rejected"] == "" for c in record["candidates"]) >= 2
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_at_picks_the_object_nearest_a_point(room, prepared_floor, k):
+    floor, above = prepared_floor
+    points = room.scan.points[above]
+    truth = np.flatnonzero(room.labels[above] == k)
+    result = segment_objects(points, floor.height(points), floor.normal, rng=np.random.default_rng(0),
+                             shape=chair_shape(), at=points[truth].mean(0))
+    assert result.how == "at" and iou(result.index, truth) > 0.9
+
+
+def test_clean_scan_segments_as_before(chair=None):
+    chair = stand_in_chair()
+    for seed in (5, 8):
+        scan = scan_mesh(chair, rng=np.random.default_rng(seed), settings=ScannerSettings(outlier_fraction=0.01))
+        prepared = prepare_scan(ScanCloud(scan.points, scan.normals), rng=np.random.default_rng(0),
+                                shape=chair_shape())
+        assert prepared.segmentation.walls == []
+        assert scan.is_object[prepared.index].mean() > 0.995
+        assert scan.is_object[prepared.index].sum() > 0.8 * scan.is_object.sum()
+
+
+def test_normalized_cut_splits_a_chair_from_a_box_beside_it():
+    """A chair and a box 2-3 cm apart in a scan (one DBSCAN cluster): the cut follows the gap."""
+    from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
+
+    settings = replace(SMALL, first_neighbour_gap_m=(0.02, 0.03), others=(1, 1))
+    chair = generate_shape("chair", shape_seed(EVAL_SET_SEED, 102)).mesh
+    room = scan_room(chair, rng=np.random.default_rng(2), settings=settings,
+                     others=[("box", box((0.4, 0.5, 0.5)), "box")])
+    height = room.scan.points @ room.scan.up - room.scan.floor_offset
+    pair = np.isin(room.labels, [0, 1]) & (height > 0.03)
+    side, value = normalized_cut(room.scan.points[pair])
+    is_chair = room.labels[pair] == 0
+    assert max((side == is_chair).mean(), (side != is_chair).mean()) > 0.95 and value < 0.02
+    box_alone = (room.labels == 1) & (height > 0.03)
+    assert normalized_cut(room.scan.points[box_alone])[1] > 0.02  # one box: no neck to cut
+
+
+def test_nothing_left_says_what_was_removed():
+    rng = np.random.default_rng(0)
+    flat = np.column_stack([rng.uniform(0, 2, 2000), rng.uniform(0, 0.05, 2000), rng.uniform(0, 2, 2000)])
+    with pytest.raises(JsrteError, match="no object left after segmentation.*too flat"):
+        segment_objects(flat, flat[:, 1], np.array([0.0, 1.0, 0.0]), rng=rng)
+
+
+# --- free space among clutter ----------------------------------------------------------------
+
+
+def test_other_objects_bound_free_space_but_never_inside_the_object(tmp_path):
+    """A box target beside a table and before a wall: the line-of-sight samples come from all
+    that was seen, none lies inside the target, and its surface samples are its own."""
+    from jsrte.fit.query import query_from_scan
+    from jsrte.presets import ScanSdf, with_line_of_sight
+
+    settings = replace(SMALL, first_neighbour_gap_m=(0.05, 0.06), walls=(1, 1))
+    target = box((0.45, 0.8, 0.4))
+    room = scan_room(target, rng=np.random.default_rng(4), settings=settings, target_kind="box",
+                     others=[("table", table(), "test")])
+    ply = write_room(room, tmp_path / "room")
+    truth = trimesh.Trimesh(room.objects[0].scan_from_mesh.apply(target.vertices), target.faces)
+    shape = ClassShape.of_mesh("box", target.vertices, target.sample(3000, seed=0))
+    query = query_from_scan(ply, rng=np.random.default_rng(0), shape=shape,
+                            settings=with_line_of_sight(ScanSdf(), True))
+    assert query.info["segmentation"]["candidates"][query.info["segmentation"]["chosen"]]["chosen"]
+    assert np.abs(trimesh.proximity.signed_distance(truth, query.surface[:500])).max() < 0.06
+    rays = query.points[len(query.points) - query.n_refine_only:]
+    assert len(rays) > 1000
+    inside = truth.contains(rays)
+    assert inside.mean() < 0.002  # depth noise at the surface only
+    # the samples reach beyond the object's own points: in front of the table and the wall too
+    from scipy.spatial import cKDTree
+
+    near_other = cKDTree(room.scan.points[room.labels != 0]).query(rays)[0] < 0.1
+    assert near_other.sum() > 50
+
+
+# --- command line ----------------------------------------------------------------------------
+
+
+def test_cli_scene_writes_a_room(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "room"
+    code, stdout, _ = run_cli(monkeypatch, capsys, "scene", "--out", out, "--kinds", "box", "--others", "1,2",
+                              "--walls", "1,1", "--seed", "3")
+    assert code == 0 and "scene.json" in stdout
+    scene = json.loads((out / "scene.json").read_text())
+    assert scene["objects"][0]["class"] == "chair" and len(scene["walls"]) == 1
+    assert all(o["class"] == "box" for o in scene["objects"][1:])
+    assert (read_room_labels(out / "scan.ply") == FLOOR_LABEL).any()
+    code, _, err = run_cli(monkeypatch, capsys, "scene", "--out", out)
+    assert code == 2 and "--overwrite" in err
+    code, _, err = run_cli(monkeypatch, capsys, "scene", "--out", tmp_path / "x", "--kinds", "lamp")
+    assert code == 2 and "--kinds" in err and err.count("\n") == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_cli_fit_at_records_the_choice(tmp_path, monkeypatch, capsys, room):
+    """``jsrte fit ROOM --at X,Y,Z`` fits the object there; fit.json records every candidate."""
+    ply = write_room(room, tmp_path / "room")
+    box_centre = room.scan.points[room.labels == 1].mean(0)
+    args = ["fit", ply, "--preset", "smoke", "--hypotheses", "2", "--threads", "1", "--no-progress"]
+    code, _, err = run_cli(monkeypatch, capsys, *args, "--out", tmp_path / "fit",
+                           "--at", ",".join(f"{v:.4f}" for v in box_centre))
+    assert code == 0, err
+    record = json.loads((tmp_path / "fit" / "fit.json").read_text())["query"]["segmentation"]
+    chosen = record["candidates"][record["chosen"]]
+    assert record["chosen_by"] == "at" and chosen["distance_to_at_m"] < 0.1
+    assert len(record["candidates"]) >= 2 and sum(c["chosen"] for c in record["candidates"]) == 1
+    code, _, err = run_cli(monkeypatch, capsys, *args, "--out", tmp_path / "bad", "--at", "1,2")
+    assert code == 2 and "--at" in err and not (tmp_path / "bad").exists()

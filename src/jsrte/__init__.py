@@ -32,7 +32,7 @@ __version__ = "0.1.0"
 
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
         up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool | None = None,
-        free_axis: bool = False,
+        free_axis: bool = False, at: np.ndarray | None = None,
         hypotheses: int | None = None, seed: int = 0, progress: bool = False,
         device: str | torch.device | None = None, units_check: bool = True) -> FitResult:
     """Find the shape and the similarity transform that explain ``query`` (a scan file, a mesh,
@@ -45,7 +45,7 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     from jsrte.fit import fit as _fit
 
     return _fit(query, model=model, preset=preset, up=up, viewpoints=viewpoints, line_of_sight=line_of_sight,
-                free_axis=free_axis, hypotheses=hypotheses, seed=seed, progress=progress, device=device,
+                free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, progress=progress, device=device,
                 units_check=units_check)
 
 

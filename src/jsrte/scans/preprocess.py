@@ -8,7 +8,7 @@ scan units (metres).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -481,8 +481,15 @@ def prepare_scan(
     heights = floor.height(points[index]) if floor is not None else points[index] @ up_axis
     if floor is None:
         heights = heights - heights.min()
-    segmentation = segment_objects(points[index], heights, up_axis, rng=np.random.default_rng(SEGMENT_SEED),
-                                   shape=shape, at=at, settings=segment, path=cloud.path)
+    if not settings.units_check:  # sizes in other units than metres: no size is implausible
+        segment = replace(segment, min_height_m=0.0, min_width_m=0.0, max_height_m=np.inf, max_width_m=np.inf)
+    try:
+        segmentation = segment_objects(points[index], heights, up_axis, rng=np.random.default_rng(SEGMENT_SEED),
+                                       shape=shape, at=at, settings=segment, path=cloud.path)
+    except JsrteError:
+        if settings.units_check:  # nothing of an object's size: say first if the units look wrong
+            check_units(points[index], cloud.path, settings=settings, what="what stands on the floor")
+        raise
     index = index[segmentation.index]
     index = index[remove_outliers(points[index], neighbours=settings.sor_neighbours,
                                   std_ratio=settings.sor_std_ratio)]

@@ -98,7 +98,7 @@ def build(toolchain: Toolchain, *, verbose: bool = False) -> Path:
     cmd = [toolchain.compiler, "-O2", "-shared", "-fPIC", "-std=c++17", "-fopenmp", "-w", str(SOURCE),
            "-o", str(tmp), *toolchain.flags]
     if verbose:
-        print(" ".join(cmd), file=sys.stderr)
+        sys.stderr.write(" ".join(cmd) + "\n")
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
         tmp.unlink(missing_ok=True)
@@ -166,6 +166,6 @@ def ourcvfh(points: np.ndarray, normals: np.ndarray, *, eps_angle: float, curvat
 if __name__ == "__main__":  # python -m jsrte.baselines.pcl: prebuild at install time
     found = find_toolchain()
     if found is None:
-        print(f"PCL binding not built: {INSTALL_HINT}", file=sys.stderr)
+        sys.stderr.write(f"PCL binding not built: {INSTALL_HINT}\n")
         sys.exit(1)
-    print(f"PCL {found.pcl_version}: {build(found, verbose=True)}")
+    sys.stdout.write(f"PCL {found.pcl_version}: {build(found, verbose=True)}\n")

@@ -24,6 +24,7 @@ classifier is far from converged (see benchmarks/bench_baselines.py for its trai
 from __future__ import annotations
 
 import json
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -168,8 +169,8 @@ def train_classifier(pools: list[np.ndarray], settings: PointNetSettings = Point
         sched.step()
         history.append({"epoch": epoch + 1, "loss": total / len(labels), "accuracy": correct / len(labels)})
         if progress:
-            print(f"pointnet epoch {epoch + 1}/{settings.epochs}: loss {history[-1]['loss']:.3f} "
-                  f"train accuracy {history[-1]['accuracy']:.3f}", flush=True)
+            sys.stderr.write(f"pointnet epoch {epoch + 1}/{settings.epochs}: loss {history[-1]['loss']:.3f} "
+                             f"train accuracy {history[-1]['accuracy']:.3f}\n")
     recalibrate_batchnorm(net, training_batch(pools, settings, rng)[0], settings.batch_size)
     report = {"classes": len(pools), "train_seconds": round(time.perf_counter() - started, 1),
               "final_loss": history[-1]["loss"] if history else None,

@@ -68,6 +68,7 @@ def _one_thread_children() -> Iterator[None]:
 
 
 def lost_reason(job: ScanJob) -> str:
+    """How many times ``job`` was tried, for the error of a scan whose worker died each time."""
     return f"{job.attempt + 1} attempt{'s' if job.attempt else ''}"
 
 

@@ -18,6 +18,7 @@ LOCAL = "local"
 
 
 def import_ray() -> Any:
+    """The ``ray`` module, or a one-line error saying how to install it."""
     try:
         import ray
     except ImportError:

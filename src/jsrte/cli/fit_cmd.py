@@ -60,6 +60,7 @@ def check_hypotheses(hypotheses: int | None) -> None:
 
 
 def check_preset(preset: str) -> str:
+    """``preset`` if it names a preset, else a one-line error listing the known ones."""
     if preset not in PRESETS:
         raise JsrteError(f"unknown preset {preset!r}; known: {', '.join(PRESETS)}")
     return preset

@@ -307,6 +307,8 @@ class CompressionConfig:
 
 @dataclass
 class CompressionReport:
+    """The compression experiment's per-object rows and its summary table (one row per method)."""
+
     rows: list[dict] = field(default_factory=list)
     table: list[dict] = field(default_factory=list)
     files: list[Path] = field(default_factory=list)

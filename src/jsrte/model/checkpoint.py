@@ -81,12 +81,14 @@ class DeepSdfModel:
 
 
 def tensors_of(model: DeepSdfModel) -> dict[str, torch.Tensor]:
+    """The tensors a model file stores: the decoder's weights and the (n, d) latent codes."""
     tensors = {f"decoder.{k}": v.detach().contiguous() for k, v in model.decoder.state_dict().items()}
     tensors[CODES_KEY] = model.codes.detach().contiguous()
     return tensors
 
 
 def model_metadata(model: DeepSdfModel) -> dict[str, Any]:
+    """The JSON description stored with a model (architecture, class, data, settings, metrics)."""
     meta = dict(model.meta)
     meta.update(
         format=FORMAT,

@@ -85,4 +85,5 @@ def decoder_device(module: nn.Module) -> torch.device:
 
 
 def count_parameters(module: nn.Module) -> int:
+    """The number of scalar parameters of ``module``."""
     return sum(p.numel() for p in module.parameters())

@@ -352,5 +352,6 @@ def _truncate_log(path: Path, step: int) -> None:
 
 
 def seed_everything(seed: int) -> np.random.Generator:
+    """Seed PyTorch with ``seed``; returns a NumPy generator seeded the same."""
     torch.manual_seed(seed)
     return np.random.default_rng(seed)

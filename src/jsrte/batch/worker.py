@@ -192,7 +192,7 @@ def _fit(job: ScanJob, model: Any, tmp: Path, started: float) -> JobOutcome:
     seconds = time.perf_counter() - started
     out = tmp / "out"
     out.mkdir()
-    written = write_fit_outputs(result, out, query_points=_overlay_points(scan), up=result.info.get("up"),
+    written = write_fit_outputs(result, out, query_points=result.query_points, up=result.info.get("up"),
                                 extra={"input": job.scan, "truth": scores, "wall_time_s": round(seconds, 2)})
     files = {p.name: p.read_bytes() for p in written}
     row = summary_row(job.scan, job.name, "ok", error=note, scale=result.transform.s, seconds=seconds,
@@ -224,22 +224,3 @@ def _score(job: ScanJob, result: Any, tmp: Path) -> tuple[dict | None, str]:
                                  settings=get_preset(job.options.preset).fit)
     return {k: float(v) for k, v in scores.items()}, ""
 
-
-def _overlay_points(scan: Path) -> Any:
-    """The query's points for overlay.png, as ``jsrte fit`` draws them: (n, 3) float."""
-    import numpy as np
-
-    suffix = scan.suffix.lower()
-    if suffix == ".npz":
-        from jsrte.sdf.mesh_sdf import SdfSamples
-
-        s = SdfSamples.load(scan)
-        near = np.abs(s.sdf) < 0.01
-        return s.points[near] * s.scale + s.centre
-    if suffix in (".glb", ".gltf"):
-        from jsrte.geometry.mesh import load_mesh
-
-        return np.asarray(load_mesh(scan).vertices)
-    from jsrte.scans.io import load_scan
-
-    return load_scan(scan).points

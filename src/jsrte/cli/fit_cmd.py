@@ -112,28 +112,9 @@ def fit_command(
                  line_of_sight=line_of_sight, free_axis=free_axis, at=_three_numbers(at, "--at") if at else None,
                  hypotheses=hypotheses, seed=seed, progress=progress, device=torch_device, units_check=units_check)
     with output_dir(out, overwrite=overwrite, marker=RESULT_NAME) as folder:
-        query_points = _surface_points(scan, result)
-        write_fit_outputs(result, folder, query_points=query_points, up=result.info.get("up"),
+        write_fit_outputs(result, folder, query_points=result.query_points, up=result.info.get("up"),
                           extra={"input": str(scan)})
     _report(result, out)
-
-
-def _surface_points(scan: Path, result) -> np.ndarray:  # noqa: ANN001
-    """The query's points for the overlay figure."""
-    import numpy as np
-
-    from jsrte.fit.query import is_query_file, read_query_file
-    from jsrte.scans.io import load_scan
-
-    if scan.suffix.lower() == ".npz" and is_query_file(scan):
-        return read_query_file(scan).surface
-    if scan.suffix.lower() == ".npz":
-        from jsrte.sdf.mesh_sdf import SdfSamples
-
-        s = SdfSamples.load(scan)
-        near = np.abs(s.sdf) < 0.01
-        return s.points[near] * s.scale + s.centre
-    return load_scan(scan).points
 
 
 @app.command("prepare")

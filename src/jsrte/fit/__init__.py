@@ -64,6 +64,7 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
             query, rng=rng, up=up, viewpoints=viewpoints, scan_settings=settings.scan_sdf,
             units_check=units_check, shape=_shape_if_scan(query, loaded), at=at)
     result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=hypotheses, seed=seed, progress=progress)
+    result.query_points = sdf_query.surface
     result.info.update(preset=settings.name, model=loaded.name, model_sha256=loaded.meta.get("sha256"),
                        query=sdf_query.info, device=str(decoder_device(loaded.decoder)),
                        up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())

@@ -58,6 +58,9 @@ class FitResult:
     hypotheses: list[HypothesisReport] = field(default_factory=list)
     timing: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
+    query_points: np.ndarray | None = None
+    """(n, 3) the query's surface points in scan units (a scan's object points), for overlays;
+    not part of ``to_json``."""
 
     @property
     def mesh(self) -> trimesh.Trimesh | None:

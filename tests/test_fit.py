@@ -215,9 +215,9 @@ def test_every_advertised_mesh_format_fits_through_the_cli(tmp_path, monkeypatch
 
     import trimesh
 
-    from jsrte.model.checkpoint import save_model
     from analytic import octahedron_model
     from cli_runner import run_cli
+    from jsrte.model.checkpoint import save_model
 
     model = tmp_path / "model.safetensors"
     save_model(octahedron_model(), model)

@@ -62,3 +62,10 @@ def kill_all(pids: set[int]) -> None:
             os.kill(pid, 9)
         except OSError:
             pass
+
+
+def sigkill_leaves_no_orphans(proc: object, workers: set[int]) -> None:
+    """SIGKILL ``proc`` (a ``subprocess.Popen``) and assert that none of ``workers`` outlives it."""
+    proc.kill()
+    proc.wait()
+    assert not wait_until_gone(workers, timeout=20), "worker processes outlived their parent"

@@ -270,7 +270,7 @@ def test_results_of_another_model_or_preset_are_not_reused(first_run, model_file
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_a_killed_run_leaves_no_orphans_and_resumes_to_the_same_results(first_run, model_file, scan_pool,
                                                                          tmp_path):
-    from process_tree import kill_all, wait_for_descendants, wait_until_gone
+    from process_tree import kill_all, sigkill_leaves_no_orphans, wait_for_descendants
 
     scans, _ = scan_pool
     folder, out = tmp_path / "scans", tmp_path / "out"
@@ -283,9 +283,7 @@ def test_a_killed_run_leaves_no_orphans_and_resumes_to_the_same_results(first_ru
     try:
         workers = wait_for_descendants(proc.pid, 3, timeout=120)  # two workers and the resource tracker
         assert len(workers) >= 2, "the workers never started"
-        proc.kill()
-        proc.wait()
-        assert not wait_until_gone(workers, timeout=20), "worker processes outlived their parent"
+        sigkill_leaves_no_orphans(proc, workers)
     finally:
         proc.kill()
         kill_all(wait_for_descendants(proc.pid, 0, 0))

@@ -11,7 +11,7 @@ import sys
 import pytest
 import torch
 
-from process_tree import kill_all, wait_for_descendants, wait_until_gone
+from process_tree import kill_all, sigkill_leaves_no_orphans, wait_for_descendants
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -31,9 +31,7 @@ def test_train_killed_while_sampling_leaves_no_orphans_and_reruns_to_the_same_mo
         workers = wait_for_descendants(proc.pid, 2, timeout=120)  # the sampling pool
         assert workers, "the sampling workers never started"
         assert not (killed / STATE_NAME).exists()  # still sampling
-        proc.kill()
-        proc.wait()
-        assert not wait_until_gone(workers, timeout=20), "worker processes outlived their parent"
+        sigkill_leaves_no_orphans(proc, workers)
     finally:
         proc.kill()
         kill_all(wait_for_descendants(proc.pid, 0, 0))

@@ -42,6 +42,7 @@ from jsrte.fit.optimize import (
     _final_losses,
     latent_penalty,
     loss_clamp,
+    new_batch,
     pruning_stages,
 )
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
@@ -269,11 +270,8 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     hypothesis still in the batch (by initial index), for studying pruning schedules.
     """
     start = time.perf_counter()
-    decoder.eval()
-    decoder.requires_grad_(False)
+    batch = new_batch(decoder, inits, settings, fixed=fixed, generator=generator, prior=prior)
     device = decoder_device(decoder)
-    batch = HypothesisBatch(inits, decoder.config.latent_size, latent_init_std=settings.latent_init_std,
-                            fixed=fixed, generator=generator, prior=prior).to(device)
     whitening = None if prior is None else (batch.prior_mean, batch.prior_factor)
     problem_of = ProblemDrawer(query, inits, settings, generator=generator, whitened=prior is not None,
                                device=device)

@@ -62,6 +62,16 @@ class Optimized:
     """Hypotheses (by initial index) dropped because their objective turned NaN or infinite, and why."""
 
 
+def new_batch(decoder: Decoder, inits: list[Init], settings: FitSettings, *, fixed: frozenset[str],
+              generator: torch.Generator, prior: LatentPrior | None) -> HypothesisBatch:
+    """The hypotheses of ``inits`` on the decoder's device, the decoder frozen in eval mode (both
+    solvers optimize the hypotheses, never the decoder)."""
+    decoder.eval()
+    decoder.requires_grad_(False)
+    return HypothesisBatch(inits, decoder.config.latent_size, latent_init_std=settings.latent_init_std,
+                           fixed=fixed, generator=generator, prior=prior).to(decoder_device(decoder))
+
+
 def learning_rate(settings: FitSettings, iteration: int) -> float:
     """The paper's schedule: lr divided by ``lr_decay_factor`` every ``lr_decay_every`` iterations."""
     return settings.lr / settings.lr_decay_factor ** (iteration // settings.lr_decay_every)
@@ -133,11 +143,8 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     the CPU, so a seed gives the same draws on every device).
     """
     start = time.perf_counter()
-    decoder.eval()
-    decoder.requires_grad_(False)
+    batch = new_batch(decoder, inits, settings, fixed=fixed, generator=generator, prior=prior)
     device = decoder_device(decoder)
-    batch = HypothesisBatch(inits, decoder.config.latent_size, latent_init_std=settings.latent_init_std,
-                            fixed=fixed, generator=generator, prior=prior).to(device)
     clamp = loss_clamp(settings, inits)
     s0 = float(np.median([i.scale for i in inits]))
     penalty = latent_penalty(settings, n_surface=len(query.surface)) * (s0 if prior is not None else 1.0)

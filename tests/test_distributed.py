@@ -55,20 +55,27 @@ WORKER = textwrap.dedent("""
     from jsrte.model.distributed import init_from_env, shutdown
     from jsrte.model.train import Trainer, TrainingData, TrainSettings
 
-    torch.set_default_dtype(torch.float64)
-    torch.set_num_threads(1)
-    data_file, out = sys.argv[1], sys.argv[2]
-    saved = torch.load(data_file)
-    data = TrainingData(saved["points"], saved["sdf"], {"source": "test"})
-    config, settings = DecoderConfig(**saved["config"]), TrainSettings(**saved["settings"])
-    ctx = init_from_env()
-    first = Trainer(config, settings, data, out, {"name": "ddp"}, dist=ctx)
-    first.run(until=settings.steps // 2, progress=False)
-    second = Trainer(config, settings, data, out, {"name": "ddp"}, dist=ctx)  # a fresh start: --resume
-    second.load_checkpoint()
-    assert second.step == settings.steps // 2
-    second.run(progress=False)
-    shutdown(ctx)
+
+    def main(data_file, out):
+        # In a function, as in the CLI: the trainers (their DDP wrappers hold the process group) are
+        # freed on return, while the interpreter is alive. Left as module globals, gloo's threads are
+        # torn down during interpreter finalization, which can abort the process at exit.
+        torch.set_default_dtype(torch.float64)
+        torch.set_num_threads(1)
+        saved = torch.load(data_file)
+        data = TrainingData(saved["points"], saved["sdf"], {"source": "test"})
+        config, settings = DecoderConfig(**saved["config"]), TrainSettings(**saved["settings"])
+        ctx = init_from_env()
+        first = Trainer(config, settings, data, out, {"name": "ddp"}, dist=ctx)
+        first.run(until=settings.steps // 2, progress=False)
+        second = Trainer(config, settings, data, out, {"name": "ddp"}, dist=ctx)  # a fresh start: --resume
+        second.load_checkpoint()
+        assert second.step == settings.steps // 2
+        second.run(progress=False)
+        del first, second
+        shutdown(ctx)
+
+    main(sys.argv[1], sys.argv[2])
 """)
 
 

@@ -88,7 +88,12 @@ def init_from_env() -> DistContext | None:
 
 
 def shutdown(ctx: DistContext | None) -> None:
-    """Leave the process group (after the last checkpoint)."""
+    """Leave the process group (after the last checkpoint).
+
+    A trainer's DDP wrapper keeps the group alive until the trainer is freed: free trainers before
+    the interpreter exits (locals of a function, not module globals), or gloo's worker threads are
+    torn down during interpreter finalization, which can abort the process at exit.
+    """
     if ctx is not None and dist.is_initialized():
         dist.barrier()
         dist.destroy_process_group()

@@ -3,7 +3,7 @@
 Rendering uses pyrender offscreen through EGL (headless; ``PYOPENGL_PLATFORM`` is set to
 ``egl`` unless already set). Where EGL or pyrender is unavailable, a matplotlib renderer
 (painter's algorithm, same cameras) is used instead; pass ``backend="matplotlib"`` to force it.
-Tiles are composed with matplotlib and every PNG is written atomically.
+Tiles are composed with Pillow and every PNG is written atomically.
 
 Cameras orbit the ``up`` axis; azimuth 0 looks at the object's front (the canonical frame's
 front faces -z when up is +y) and positive azimuths turn towards the object's left, so the
@@ -395,27 +395,44 @@ TITLE_PX = 36
 
 def _compose(images: list[np.ndarray], labels: list[str | None], out_path: str | Path, *,
              cols: int, title: str | None = None) -> None:
-    """Tiles in a grid (labels under them, optional title on top) -> one PNG, atomically."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    """Tiles in a grid (labels under them, optional title on top) -> one PNG, atomically.
+
+    Composed with Pillow (no matplotlib import: a fit's overlay costs only its renders)."""
+    from PIL import Image, ImageDraw
 
     rows = math.ceil(len(images) / cols)
     tile_h, tile_w = images[0].shape[:2]
     label_h = LABEL_PX if any(labels) else 0
     title_h = TITLE_PX if title else 0
     width, height = cols * tile_w, rows * (tile_h + label_h) + title_h
-    fig = Figure(figsize=(width / 100.0, height / 100.0), dpi=100, facecolor="white")
-    FigureCanvasAgg(fig)
+    sheet = Image.new("RGB", (width, height), "white")
+    draw = ImageDraw.Draw(sheet)
     if title:
-        fig.text(0.5, 1.0 - (title_h / 2.0) / height, title, ha="center", va="center", fontsize=13)
+        draw.text((width / 2.0, title_h / 2.0), title, fill="black", anchor="mm", font=_font(TITLE_FONT_PX))
     for index, (image, label) in enumerate(zip(images, labels, strict=True)):
         row, col = divmod(index, cols)
         top = title_h + row * (tile_h + label_h)
-        ax = fig.add_axes((col * tile_w / width, 1.0 - (top + tile_h) / height,
-                           tile_w / width, tile_h / height))
-        ax.imshow(image, interpolation="nearest")
-        ax.axis("off")
+        sheet.paste(Image.fromarray(np.ascontiguousarray(image[..., :3], dtype=np.uint8)), (col * tile_w, top))
         if label:
-            fig.text((col + 0.5) * tile_w / width, 1.0 - (top + tile_h + label_h / 2.0) / height,
-                     label, ha="center", va="center", fontsize=11)
-    write_with(out_path, lambda tmp: fig.savefig(tmp, dpi=100, facecolor="white", format="png"))
+            draw.text(((col + 0.5) * tile_w, top + tile_h + label_h / 2.0), label, fill="black", anchor="mm",
+                      font=_font(LABEL_FONT_PX))
+    write_with(out_path, lambda tmp: sheet.save(tmp, format="png"))
+
+
+TITLE_FONT_PX = 18
+LABEL_FONT_PX = 15
+
+
+def _font(size: int) -> object:
+    """DejaVu Sans at ``size`` pixels (the font matplotlib ships, found without importing it), else
+    Pillow's own default font."""
+    import importlib.util
+
+    from PIL import ImageFont
+
+    spec = importlib.util.find_spec("matplotlib")
+    if spec is not None and spec.origin is not None:
+        path = Path(spec.origin).parent / "mpl-data" / "fonts" / "ttf" / "DejaVuSans.ttf"
+        if path.exists():
+            return ImageFont.truetype(str(path), size)
+    return ImageFont.load_default(size)

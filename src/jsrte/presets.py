@@ -160,6 +160,23 @@ class FitSettings:
     initial pose and code, and solve only the best this many; None: solve them all."""
     yaw_screen_samples: int = 400
     """Samples on which the yaw starts are screened (the same for every start)."""
+    latent_warmup: int = 0
+    """Gauss–Newton: for the first this many iterations the latent penalty is multiplied by
+    ``latent_warmup_factor`` (a continuation: the pose settles on shapes near the mean code
+    before the code moves far, instead of the code absorbing a wrong pose); 0: none."""
+    latent_warmup_factor: float = 100.0
+    code_starts: int = 0
+    """Gauss–Newton, whitened latent: at the first pruning every survivor also restarts from this
+    many training codes at its pose (those with the lowest objective there, by forward passes on
+    ``yaw_screen_samples`` samples), as more hypotheses; only the best copy of each survivor
+    is kept at the end. 0: none."""
+    polish_iterations: int = 0
+    """Gauss–Newton: Adam iterations after the Levenberg–Marquardt solve, on the survivors, with
+    ``polish_samples`` fresh samples each (the fixed sample set's overfitting averaged out);
+    0: none."""
+    polish_lr: float = 0.005
+    """Adam learning rate of the polish, every free parameter."""
+    polish_samples: int = 1500
 
     def without_pruning(self) -> FitSettings:
         """The same settings with every hypothesis run to the end (both prunings off)."""

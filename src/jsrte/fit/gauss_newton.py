@@ -28,7 +28,7 @@ initial pose and code; the best few go on.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -46,6 +46,7 @@ from jsrte.fit.optimize import (
     pruning_stages,
 )
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
+from jsrte.fit.polish import polish
 from jsrte.geometry.sim3 import rotation_from_paper
 from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.presets import FitSettings
@@ -119,14 +120,16 @@ def free_columns(fixed: frozenset[str], latent_size: int) -> torch.Tensor:
 
 
 def _rotations(angles: torch.Tensor, base: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """R (H, 3, 3) = R(ψ, ρ, θ) @ base and ∂R/∂(ψ, ρ, θ) (H, 3, 3, 3) (last index: the angle)."""
+    """R (H, 3, 3) = R(ψ, ρ, θ) @ base and ∂R/∂(ψ, ρ, θ) (H, 3, 3, 3) (last index: the angle).
 
-    def rotation(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        return rotation_from_paper(a[0], a[1], a[2]) @ b
-
-    r = torch.vmap(rotation)(angles, base)
-    dr = torch.vmap(torch.func.jacfwd(rotation))(angles, base)
-    return r, dr
+    The derivative comes from nine reverse-mode passes over the tiny rotation graph (one per
+    entry of R, every hypothesis at once): ``torch.func`` would import TorchDynamo, a second
+    of start-up, for this alone."""
+    with torch.enable_grad():
+        a = angles.detach().clone().requires_grad_(True)
+        r = rotation_from_paper(a[:, 0], a[:, 1], a[:, 2]) @ base
+        rows = [torch.autograd.grad(r[:, i, j].sum(), a, retain_graph=True)[0] for i in range(3) for j in range(3)]
+    return r.detach(), torch.stack(rows, dim=1).reshape(len(angles), 3, 3, 3)
 
 
 def _latent(p: torch.Tensor, prior: tuple[torch.Tensor, torch.Tensor] | None) -> torch.Tensor:
@@ -294,12 +297,16 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     problem = problem_of(settings.samples_per_iteration)
     free = free_columns(fixed, decoder.config.latent_size).to(device)
     base = batch.base_rotation
+    target = problem
+    if settings.latent_warmup > 0:
+        problem = replace(problem, penalty=problem.penalty * settings.latent_warmup_factor)
     lin = linearize(decoder, p, base, problem, whitening, free)
     evaluations += len(p) * len(problem.sdf)
     damping = torch.full((len(p),), settings.damping, dtype=torch.float64, device=device)
     moving = torch.ones(len(p), dtype=torch.bool, device=device)
     stages = pruning_stages(settings)
     iterations = 0
+    restarted = False
     for it in tqdm(range(settings.iterations), desc="fitting", disable=not progress):
         p, base, lin, damping, moving, survivors = _drop_failed(p, base, lin, damping, moving, survivors,
                                                                 failed, batch)
@@ -311,6 +318,19 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
             lin = Linearization(lin.objective[keep], lin.hessian[keep], lin.gradient[keep])
             survivors = survivors[keep.cpu().numpy()]
             batch.keep(keep.cpu())
+        if settings.code_starts and not restarted and (it == min(stages, default=0) or not bool(moving.any())) \
+                and prior is not None and prior.codes is not None and "latent" not in fixed:
+            restarted = True
+            p, base, survivors, n = _code_restarts(decoder, p, base, survivors, batch, problem_of, prior, settings)
+            evaluations += n
+            lin = None
+        if problem is not target and it >= settings.latent_warmup:
+            problem, lin = target, None
+        if lin is None:  # a new objective or new hypotheses: linearize afresh, every one moving
+            lin = linearize(decoder, p, base, problem, whitening, free)
+            evaluations += len(p) * len(problem.sdf)
+            damping = torch.full((len(p),), settings.damping, dtype=torch.float64, device=device)
+            moving = torch.ones(len(p), dtype=torch.bool, device=device)
         if trace is not None:
             trace.append({int(i): float(v) for i, v in zip(survivors, lin.objective.tolist(), strict=True)})
         if not bool(moving.any()):
@@ -339,6 +359,10 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     p, base, lin, damping, moving, survivors = _drop_failed(p, base, lin, damping, moving, survivors, failed,
                                                             batch)
     unpack_into(batch, p)
+    if len(set(survivors.tolist())) < len(survivors):
+        survivors = _best_copies(batch, survivors, lin.objective)
+    if settings.polish_iterations:
+        evaluations += polish(decoder, batch, problem_of, settings)
     final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty,
                           (settings.scale_prior, s0), generator)
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
@@ -362,3 +386,38 @@ def _drop_failed(p: torch.Tensor, base: torch.Tensor, lin: Linearization, dampin
     batch.keep(keep.cpu())
     lin = Linearization(lin.objective[keep], lin.hessian[keep], lin.gradient[keep])
     return p[keep], base[keep], lin, damping[keep], moving[keep], survivors[keep.cpu().numpy()]
+
+
+def _code_restarts(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, survivors: np.ndarray,
+                   batch: HypothesisBatch, problem_of: ProblemDrawer, prior: LatentPrior,
+                   settings: FitSettings) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, int]:
+    """Every hypothesis of p (H, 7 + d) followed by ``settings.code_starts`` copies at its pose
+    whose whitened codes are the training codes with the lowest objective there (forward passes
+    on ``yaw_screen_samples`` samples); returns p, base, survivors and the evaluations spent."""
+    codes = torch.as_tensor(prior.codes, dtype=torch.float64, device=p.device)
+    whitened = torch.linalg.solve_triangular(batch.prior_factor, (codes - batch.prior_mean).T, upper=False).T
+    screen = problem_of(settings.yaw_screen_samples)
+    n, k = len(whitened), min(settings.code_starts, len(whitened))
+    rows, bases = [], []
+    for h in range(len(p)):
+        trial = p[h].repeat(n, 1)
+        trial[:, N_POSE:] = whitened
+        with torch.no_grad():
+            scores = linearize(decoder, trial, base[h].expand(n, 3, 3), screen, (batch.prior_mean,
+                                                                                  batch.prior_factor), None).objective
+        best = torch.argsort(torch.where(torch.isfinite(scores), scores, torch.full_like(scores, float("inf"))))[:k]
+        rows += [p[h][None], trial[best]]
+        bases += [base[h][None]] * (1 + k)
+    index = torch.arange(len(p)).repeat_interleave(1 + k)
+    batch.keep(index)
+    return (torch.cat(rows), torch.cat(bases), survivors[index.numpy()],
+            len(p) * n * len(screen.sdf))
+
+
+def _best_copies(batch: HypothesisBatch, survivors: np.ndarray, objective: torch.Tensor) -> np.ndarray:
+    """Keep, of the hypotheses that share a start (code restarts), the one with the lowest
+    ``objective`` (H,); returns the kept hypotheses' start indices."""
+    values = objective.cpu().numpy()
+    keep = [min(np.flatnonzero(survivors == s), key=lambda h: values[h]) for s in dict.fromkeys(survivors.tolist())]
+    batch.keep(torch.as_tensor(keep))
+    return survivors[keep]

@@ -36,6 +36,8 @@ class LatentPrior:
 
     mean: np.ndarray
     factor: np.ndarray
+    codes: np.ndarray | None = None
+    """(n, d) float64: the training codes themselves (restarts of the code), when known."""
 
     @classmethod
     def of_codes(cls, codes: np.ndarray, *, shrinkage: float) -> LatentPrior:
@@ -45,7 +47,7 @@ class LatentPrior:
         cov = np.cov(codes.T).reshape(d, d) if len(codes) > 1 else np.zeros((d, d))
         spread = float(np.trace(cov)) / d
         cov += shrinkage * (spread if spread > 0 else 1.0) * np.eye(d)  # one code: an isotropic prior
-        return cls(codes.mean(0), np.linalg.cholesky(cov))
+        return cls(codes.mean(0), np.linalg.cholesky(cov), codes)
 
     def whiten(self, latent: np.ndarray) -> np.ndarray:
         """w (d,) with ``latent`` = mean + factor @ w."""

@@ -9,7 +9,7 @@ import torch
 from analytic import LShapeDecoder
 from jsrte.fit.api import fit_query
 from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
-from jsrte.fit.optimize import SampleDrawer, SdfQuery, _prune, hypothesis_losses, optimize
+from jsrte.fit.optimize import SampleDrawer, SdfQuery, _adam, _prune, hypothesis_losses, optimize
 from jsrte.fit.params import HypothesisBatch, Init
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
@@ -189,23 +189,33 @@ def test_sample_drawer_enriches_the_samples_under_the_clamp():
 def test_pruning_carries_the_kept_hypotheses_adam_moments(lshape):
     """After pruning, Adam goes on with the kept rows' moment estimates and step count, so the
     survivors' next step is the one they would have taken without the pruning."""
+    import copy
+
     inits = [Init(1.0 + 0.1 * i, 0.0, 0.0, t, np.zeros(3)) for i, t in enumerate(theta_grid(90.0))]
     batch = HypothesisBatch(inits, 4, latent_init_std=0.01, generator=torch.Generator().manual_seed(0))
-    optimizer = torch.optim.Adam([p for p in batch.parameters() if p.requires_grad], lr=0.05)
+    optimizer = _adam(batch, 0.05)
     points = torch.randn(64, 3, dtype=torch.float64)
-    for _ in range(3):
-        optimizer.zero_grad()
-        hypothesis_losses(lshape.decoder, batch, points, torch.zeros(64, dtype=torch.float64), clamp=None,
+
+    def step(b: HypothesisBatch, opt) -> None:  # noqa: ANN001
+        opt.zero_grad()
+        hypothesis_losses(lshape.decoder, b, points, torch.zeros(64, dtype=torch.float64), clamp=None,
                           latent_penalty=1e-4).sum().backward()
-        optimizer.step()
-    before = {name: {k: v.clone() for k, v in optimizer.state[p].items()} for name, p in batch.named_parameters()}
+        opt.step()
+
+    for _ in range(3):
+        step(batch, optimizer)
+    whole = copy.deepcopy(batch)
+    whole_optimizer = optimizer.kept([p for p in whole.parameters() if p.requires_grad], torch.arange(len(inits)))
     keep = torch.tensor([3, 1])
     pruned = _prune(batch, optimizer, keep)
-    for name, p in batch.named_parameters():
-        state = pruned.state[p]
-        assert float(state["step"]) == 3
-        torch.testing.assert_close(state["exp_avg"], before[name]["exp_avg"][keep])
-        torch.testing.assert_close(state["exp_avg_sq"], before[name]["exp_avg_sq"][keep])
+    assert pruned.steps == 3
+    for (m, v), (m0, v0) in zip(pruned.moments, optimizer.moments, strict=True):
+        torch.testing.assert_close(m, m0[keep])
+        torch.testing.assert_close(v, v0[keep])
+    step(batch, pruned)
+    step(whole, whole_optimizer)
+    for (name, p), (_, q) in zip(batch.named_parameters(), whole.named_parameters(), strict=True):
+        torch.testing.assert_close(p.detach(), q.detach()[keep], msg=name)
 
 
 def test_every_advertised_mesh_format_fits_through_the_cli(tmp_path, monkeypatch, capsys):

@@ -313,8 +313,9 @@ def test_code_restarts_leave_a_local_minimum_of_the_code_for_the_training_code_b
 def test_polish_takes_adam_steps_on_fresh_samples_and_lowers_the_objective(widening, widened_mesh):
     """The Adam update written out equals torch.optim.Adam's; a polish from a slightly wrong pose
     lowers the objective and moves the pose towards the truth."""
+    from jsrte.fit.adam import adam_step
     from jsrte.fit.gauss_newton import ProblemDrawer
-    from jsrte.fit.polish import adam_step, polish
+    from jsrte.fit.polish import polish
 
     torch.manual_seed(0)
     mine = torch.randn(6, dtype=torch.float64, requires_grad=True)

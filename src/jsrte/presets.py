@@ -160,11 +160,6 @@ class FitSettings:
     initial pose and code, and solve only the best this many; None: solve them all."""
     yaw_screen_samples: int = 400
     """Samples on which the yaw starts are screened (the same for every start)."""
-    latent_warmup: int = 0
-    """Gauss–Newton: for the first this many iterations the latent penalty is multiplied by
-    ``latent_warmup_factor`` (a continuation: the pose settles on shapes near the mean code
-    before the code moves far, instead of the code absorbing a wrong pose); 0: none."""
-    latent_warmup_factor: float = 100.0
     code_starts: int = 0
     """Gauss–Newton, whitened latent: at the first pruning every survivor also restarts from this
     many training codes at its pose (those with the lowest objective there, by forward passes on
@@ -217,11 +212,12 @@ FAST_GAUSS_NEWTON = Preset(
     name="fast-gn",
     scan_sdf=FAST.scan_sdf,
     fit=replace(FAST.fit, solver="gauss-newton", iterations=15, samples_per_iteration=2000,
-                prune_after=4, prune_keep=2, prune_again_after=None),
+                prune_after=4, prune_keep=2, prune_again_after=None, code_starts=2),
 )
 """``fast``'s objective, starts and selection, minimized by Levenberg–Marquardt (fit.gauss_newton):
 the 12 yaw starts take 4 iterations, the best two go on to at most 15 (stopping once a step
-gains under 0.1%), on 2000 samples drawn once (docs/solver.md)."""
+gains under 0.1%), each also restarted from the two training codes that fit best at its pose,
+on 2000 samples drawn once (docs/solver.md)."""
 
 SMOKE = Preset(
     name="smoke",

@@ -28,7 +28,7 @@ initial pose and code; the best few go on.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -297,9 +297,6 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     problem = problem_of(settings.samples_per_iteration)
     free = free_columns(fixed, decoder.config.latent_size).to(device)
     base = batch.base_rotation
-    target = problem
-    if settings.latent_warmup > 0:
-        problem = replace(problem, penalty=problem.penalty * settings.latent_warmup_factor)
     lin = linearize(decoder, p, base, problem, whitening, free)
     evaluations += len(p) * len(problem.sdf)
     damping = torch.full((len(p),), settings.damping, dtype=torch.float64, device=device)
@@ -324,9 +321,7 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
             p, base, survivors, n = _code_restarts(decoder, p, base, survivors, batch, problem_of, prior, settings)
             evaluations += n
             lin = None
-        if problem is not target and it >= settings.latent_warmup:
-            problem, lin = target, None
-        if lin is None:  # a new objective or new hypotheses: linearize afresh, every one moving
+        if lin is None:  # new hypotheses: linearize afresh, every one moving
             lin = linearize(decoder, p, base, problem, whitening, free)
             evaluations += len(p) * len(problem.sdf)
             damping = torch.full((len(p),), settings.damping, dtype=torch.float64, device=device)

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from jsrte.fit.adam import Adam
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
 from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.presets import FitSettings
@@ -168,13 +169,12 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
             optimizer = _prune(batch, optimizer, keep)
             survivors = survivors[keep.numpy()]
             recent = recent[keep.to(device)]
-        for group in optimizer.param_groups:
-            group["lr"] = learning_rate(settings, it)
+        optimizer.lr = learning_rate(settings, it)
         idx = sampler.draw(_sample_pool(query, settings, it), settings.samples_per_iteration,
                            enriched=it >= settings.near_sample_from).to(device)
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
                                    lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior)
-        optimizer.zero_grad(set_to_none=True)
+        optimizer.zero_grad()
         losses.sum().backward()
         optimizer.step()
         batch.clamp_scale(settings.scale_min, settings.scale_max)
@@ -228,26 +228,15 @@ def _sample_pool(query: SdfQuery, settings: FitSettings, iteration: int) -> int:
     return len(query.sdf)
 
 
-def _prune(batch: HypothesisBatch, optimizer: torch.optim.Adam, keep: torch.Tensor) -> torch.optim.Adam:
+def _prune(batch: HypothesisBatch, optimizer: Adam, keep: torch.Tensor) -> Adam:
     """Keep hypotheses ``keep`` of ``batch``; returns an Adam over the kept parameters that goes
     on with their moment estimates (a fresh Adam's first steps move every parameter by ~lr)."""
-    before = {name: optimizer.state.get(p, {}) for name, p in batch.named_parameters()}
     batch.keep(keep)
-    pruned = _adam(batch, optimizer.param_groups[0]["lr"])
-    for name, p in batch.named_parameters():
-        state = before.get(name)
-        if state:
-            rows = keep.to(p.device)
-            pruned.state[p] = {"step": state["step"].clone(), "exp_avg": state["exp_avg"][rows].clone(),
-                               "exp_avg_sq": state["exp_avg_sq"][rows].clone()}
-    return pruned
+    return optimizer.kept([p for p in batch.parameters() if p.requires_grad], keep)
 
 
-def _adam(batch: HypothesisBatch, lr: float) -> torch.optim.Adam:
-    params = [p for p in batch.parameters() if p.requires_grad]
-    if not params:
-        raise ValueError("every parameter is fixed: nothing to optimize")
-    return torch.optim.Adam(params, lr=lr)
+def _adam(batch: HypothesisBatch, lr: float) -> Adam:
+    return Adam([p for p in batch.parameters() if p.requires_grad], lr)
 
 
 def _final_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,

@@ -45,8 +45,7 @@ def originals() -> dict[str, Path]:
 
     from analytic import octahedron_model
     from jsrte.codec.format import ShapeCode, encode
-    from jsrte.fit.optimize import SdfQuery
-    from jsrte.fit.query import save_query
+    from jsrte.fit.query import SdfQuery, save_query
     from jsrte.fit.result import FitResult
     from jsrte.geometry.sim3 import Sim3
     from jsrte.io import write_json_atomic

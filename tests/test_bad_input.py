@@ -27,7 +27,7 @@ from jsrte.errors import JsrteError
 
 def octahedron_query(radius: float = 0.5, n: int = 3000, seed: int = 0):
     """SDF samples (an L1 ball of ``radius``) of the octahedron model's own shape."""
-    from jsrte.fit.optimize import SdfQuery
+    from jsrte.fit.query import SdfQuery
 
     rng = np.random.default_rng(seed)
     points = rng.uniform(-1.0, 1.0, (n, 3))

@@ -28,7 +28,7 @@ from jsrte.experiments.synthetic import (
     score_outcome,
     uniform_directions,
 )
-from jsrte.fit.optimize import SdfQuery
+from jsrte.fit.query import SdfQuery
 from jsrte.geometry.sim3 import rotation_angle_deg
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decode import decode_mesh

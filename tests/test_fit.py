@@ -9,8 +9,9 @@ import torch
 from analytic import LShapeDecoder
 from jsrte.fit.api import fit_query
 from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
-from jsrte.fit.optimize import SampleDrawer, SdfQuery, _prune, hypothesis_losses, optimize
+from jsrte.fit.optimize import SampleDrawer, _prune, hypothesis_losses, optimize
 from jsrte.fit.params import HypothesisBatch, Init
+from jsrte.fit.query import SdfQuery
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decode import decode_mesh
@@ -206,28 +207,3 @@ def test_pruning_carries_the_kept_hypotheses_adam_moments(lshape):
         assert float(state["step"]) == 3
         torch.testing.assert_close(state["exp_avg"], before[name]["exp_avg"][keep])
         torch.testing.assert_close(state["exp_avg_sq"], before[name]["exp_avg_sq"][keep])
-
-
-def test_every_advertised_mesh_format_fits_through_the_cli(tmp_path, monkeypatch, capsys):
-    """A complete mesh in each format ``jsrte fit --help`` lists fits end to end, overlay included
-    (a GLB once fitted for seconds, then failed while drawing the overlay)."""
-    import json
-
-    import trimesh
-
-    from analytic import octahedron_model
-    from cli_runner import run_cli
-    from jsrte.model.checkpoint import save_model
-
-    model = tmp_path / "model.safetensors"
-    save_model(octahedron_model(), model)
-    mesh = trimesh.creation.box(extents=(0.6, 0.9, 0.5))
-    for suffix in (".obj", ".off", ".stl", ".glb"):
-        path = tmp_path / f"box{suffix}"
-        mesh.export(path)
-        out = tmp_path / f"fit{suffix[1:]}"
-        code, _, err = run_cli(monkeypatch, capsys, "fit", path, "--model", model, "--preset", "smoke",
-                               "--hypotheses", "2", "--out", out, "--no-progress", "--threads", "1")
-        assert code == 0, (suffix, err)
-        assert (out / "overlay.png").stat().st_size > 0
-        assert json.loads((out / "fit.json").read_text())["input"].endswith(suffix)

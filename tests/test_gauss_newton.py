@@ -12,8 +12,9 @@ from jsrte.errors import JsrteError
 from jsrte.fit.api import fit_query
 from jsrte.fit.gauss_newton import Linearization, Problem, damped_step, free_columns, linearize, pack, solve
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
-from jsrte.fit.optimize import SdfQuery, hypothesis_losses
+from jsrte.fit.optimize import hypothesis_losses
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
+from jsrte.fit.query import SdfQuery
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decode import decode_mesh
@@ -236,7 +237,7 @@ def test_latent_only_reconstruction_by_gauss_newton_recovers_a_sphere():
     import trimesh
 
     from analytic import SphereDecoder
-    from jsrte.model.reconstruct import LATENT_ONLY_GAUSS_NEWTON, reconstruct_latent, reconstruct_mesh
+    from jsrte.fit.reconstruct import LATENT_ONLY_GAUSS_NEWTON, reconstruct_latent, reconstruct_mesh
 
     model = DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "sphere"})
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=2.0)

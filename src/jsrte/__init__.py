@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     import numpy as np
     import torch
 
-    from jsrte.fit.optimize import SdfQuery
+    from jsrte.fit.query import SdfQuery
     from jsrte.fit.result import FitResult
     from jsrte.model.checkpoint import DeepSdfModel
 

@@ -26,9 +26,9 @@ import trimesh
 
 from jsrte.errors import JsrteError
 from jsrte.fit.api import latent_prior
-from jsrte.fit.optimize import SdfQuery, optimize
+from jsrte.fit.optimize import optimize
 from jsrte.fit.params import Init
-from jsrte.fit.query import query_from_mesh
+from jsrte.fit.query import SdfQuery, query_from_mesh
 from jsrte.geometry.mesh import normalized
 from jsrte.geometry.sim3 import Sim3, rotation_angle_deg, rotation_from_paper
 from jsrte.io import write_bytes_atomic, write_with

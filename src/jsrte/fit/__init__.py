@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from jsrte.fit.api import fit_query
-from jsrte.fit.optimize import SdfQuery
+from jsrte.fit.query import SdfQuery
 from jsrte.fit.result import FitResult
 from jsrte.model.checkpoint import DeepSdfModel
 
@@ -73,9 +73,10 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
 
 def _shape_if_scan(query: str | Path, model: DeepSdfModel) -> object:
     """The class's proportions when ``query`` is a scan (segmentation needs them), else None."""
-    from jsrte.fit.query import SCAN_SUFFIXES, class_shape
+    from jsrte.fit.query import class_shape
+    from jsrte.formats import input_kind
 
-    return class_shape(model) if Path(query).suffix.lower() in SCAN_SUFFIXES else None
+    return class_shape(model) if input_kind(query) == "scan" else None
 
 
 __all__ = ["FitResult", "SdfQuery", "fit", "fit_query"]

@@ -10,8 +10,9 @@ import torch
 from jsrte.errors import JsrteError
 from jsrte.fit.floor import with_below_floor_samples
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
-from jsrte.fit.optimize import Optimized, SdfQuery, loss_clamp, optimize
+from jsrte.fit.optimize import Optimized, loss_clamp, optimize
 from jsrte.fit.params import Init, LatentPrior
+from jsrte.fit.query import SdfQuery
 from jsrte.fit.result import FitResult, HypothesisReport
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel

@@ -274,10 +274,12 @@ def _scan_path(recorded: Any, folder: Path) -> Path | None:
 def _scan_points(path: Path, problems: list[str], max_points: int) -> np.ndarray | None:
     """(n, 3) points of a scan (a point cloud, a mesh's vertices, or SDF samples near the surface)."""
     try:
-        suffix = path.suffix.lower()
-        if suffix == ".npz":
+        from jsrte.formats import input_kind
+
+        kind = input_kind(path)
+        if kind == "npz":
             points = _npz_surface(path)
-        elif suffix in (".ply", ".glb", ".gltf"):
+        elif kind == "mesh" or path.suffix.lower() == ".ply":
             points = _trimesh_points(path)
         else:
             from jsrte.scans.io import load_scan

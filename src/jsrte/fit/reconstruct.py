@@ -10,8 +10,8 @@ import torch
 import trimesh
 
 from jsrte.fit.api import minimize
-from jsrte.fit.optimize import SdfQuery
 from jsrte.fit.params import PARAMETER_NAMES, Init
+from jsrte.fit.query import SdfQuery
 from jsrte.geometry.mesh import Normalization, normalized, unit_sphere_normalization
 from jsrte.metrics.surface import fscore
 from jsrte.model.checkpoint import DeepSdfModel

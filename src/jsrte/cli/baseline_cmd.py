@@ -9,7 +9,7 @@ import typer
 from jsrte.baselines import BASELINE_NAMES
 from jsrte.cli import app
 from jsrte.cli.common import check_out_folder, check_threads, set_threads
-from jsrte.cli.fit_cmd import parse_vector
+from jsrte.cli.fit_options import parse_vector
 from jsrte.errors import JsrteError
 
 NAME_HELP = (

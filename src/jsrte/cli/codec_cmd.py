@@ -32,7 +32,7 @@ def encode_command(
     overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
 ) -> None:
     """Store a shape as its latent code and similarity transform (the paper's compression)."""
-    from jsrte.cli.fit_cmd import check_preset, parse_vector
+    from jsrte.cli.fit_options import check_preset, parse_vector
     from jsrte.codec.format import ENCODINGS, encode
     from jsrte.codec.shapes import code_from_fit_dir, code_from_result
     from jsrte.io import write_bytes_atomic

@@ -9,7 +9,7 @@ import typer
 
 from jsrte.cli import app
 from jsrte.cli.common import check_out_folder, check_threads, set_threads
-from jsrte.cli.fit_cmd import check_preset
+from jsrte.cli.fit_options import check_preset
 
 
 @app.command("demo")

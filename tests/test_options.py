@@ -56,3 +56,11 @@ def test_every_fit_option_is_a_flag_of_fit_and_fit_many_and_the_query_ones_of_pr
     for name, wanted in (("fit", every), ("fit-many", every), ("prepare", query_only)):
         params = {p.name for p in commands[name].params}
         assert wanted <= params, (name, wanted - params)
+
+
+def test_a_mode_typo_in_fit_settings_is_refused():
+    from jsrte.presets import FitSettings
+
+    with pytest.raises(ValueError, match="FitSettings.selection must be one of fscore, loss, got 'los'"):
+        FitSettings(selection="los")
+    assert FitSettings(solver="gauss-newton", latent_space="whitened", init_scale="height").solver == "gauss-newton"

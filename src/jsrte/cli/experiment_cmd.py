@@ -10,7 +10,8 @@ import typer
 from jsrte.cli import app
 from jsrte.cli.common import resolve_device, set_threads
 from jsrte.errors import JsrteError
-from jsrte.presets import PRESETS, SCENARIOS, SYNTHETIC_SCALES, CompressionSettings
+from jsrte.experiments.settings import SCENARIOS, SYNTHETIC_SCALES, CompressionSettings
+from jsrte.presets import PRESETS
 
 experiment_app = typer.Typer(name="experiment", help="Run the paper's experiments and write their tables and "
                              "figures.", no_args_is_help=True)

@@ -41,6 +41,7 @@ import trimesh
 
 from jsrte.codec import ShapeCode, code_from_result, decode, encode
 from jsrte.errors import JsrteError
+from jsrte.experiments.settings import PAPER_TABLE3, CompressionSettings, SyntheticTruth
 from jsrte.extract.marching import extract_coarse_to_fine
 from jsrte.fit.api import fit_query
 from jsrte.fit.query import SdfQuery
@@ -51,7 +52,7 @@ from jsrte.io import write_bytes_atomic, write_with
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel, file_hash
 from jsrte.model.decode import decode_mesh
-from jsrte.presets import PAPER_TABLE3, CompressionSettings, Preset, SyntheticTruth
+from jsrte.presets import Preset
 from jsrte.sdf.mesh_sdf import signed_distance
 from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 

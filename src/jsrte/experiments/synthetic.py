@@ -25,6 +25,7 @@ import torch
 import trimesh
 
 from jsrte.errors import JsrteError
+from jsrte.experiments.settings import SCENARIOS, SYNTHETIC_FSCORE_GOOD, SyntheticScenario, SyntheticTruth
 from jsrte.fit.api import latent_prior
 from jsrte.fit.optimize import optimize
 from jsrte.fit.params import Init
@@ -35,14 +36,7 @@ from jsrte.io import write_bytes_atomic, write_with
 from jsrte.metrics.surface import fscore
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decode import decode_mesh
-from jsrte.presets import (
-    SCENARIOS,
-    SYNTHETIC_FSCORE_GOOD,
-    FitSettings,
-    SdfSampling,
-    SyntheticScenario,
-    SyntheticTruth,
-)
+from jsrte.presets import FitSettings, SdfSampling
 from jsrte.shapes import CATEGORIES, EVAL_SET_SEED, generate_shape, shape_seed
 
 Log = Callable[[str], None]

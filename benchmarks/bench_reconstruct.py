@@ -33,7 +33,7 @@ def main() -> None:
     from jsrte.fit.reconstruct import LATENT_ONLY_ADAM, LATENT_ONLY_GAUSS_NEWTON, reconstruct_latent
     from jsrte.geometry.mesh import normalized
     from jsrte.metrics.surface import fscore
-    from jsrte.model.decode import decode_mesh
+    from jsrte.model.meshing import decode_mesh
     from jsrte.model.registry import resolve_model
     from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 

@@ -44,11 +44,11 @@ def originals() -> dict[str, Path]:
     import trimesh
 
     from analytic import octahedron_model
+    from jsrte.atomic import write_json_atomic
     from jsrte.codec.format import ShapeCode, encode
     from jsrte.fit.query import SdfQuery, save_query
     from jsrte.fit.result import FitResult
     from jsrte.geometry.sim3 import Sim3
-    from jsrte.io import write_json_atomic
     from jsrte.model.checkpoint import file_hash, save_model
     from jsrte.sdf.mesh_sdf import SdfSamples
 
@@ -142,7 +142,7 @@ def _query(path: Path) -> None:
 
 
 def _code(path: Path) -> None:
-    from jsrte.codec.shapes import read_code
+    from jsrte.codec.convert import read_code
 
     code = read_code(path)
     assert np.isfinite(code.latent).all() and code.transform.s > 0
@@ -171,7 +171,7 @@ def _train_state(path: Path) -> None:
 
 
 def _fit_json(path: Path) -> None:
-    from jsrte.codec.shapes import code_from_fit_dir
+    from jsrte.codec.convert import code_from_fit_dir
 
     code = code_from_fit_dir(path.parent)
     assert np.isfinite(code.latent).all() and code.transform.s > 0

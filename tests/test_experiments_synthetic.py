@@ -32,7 +32,7 @@ from jsrte.experiments.synthetic import (
 from jsrte.fit.query import SdfQuery
 from jsrte.geometry.sim3 import rotation_angle_deg
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
+from jsrte.model.meshing import decode_mesh
 from jsrte.presets import SMOKE
 from jsrte.sdf.mesh_sdf import signed_distance
 

@@ -14,7 +14,7 @@ from jsrte.fit.params import HypothesisBatch, Init
 from jsrte.fit.query import SdfQuery
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
+from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FAST
 from jsrte.sdf.mesh_sdf import signed_distance
 

@@ -25,11 +25,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from jsrte.atomic import write_bytes_atomic
 from jsrte.batch.inputs import find_truth, list_scans, result_names
 from jsrte.batch.worker import JobOutcome, ModelBlob, ScanJob, failed_outcome, summary_row
 from jsrte.errors import JsrteError
 from jsrte.fit.outputs import RESULT_NAME
-from jsrte.io import write_bytes_atomic
 from jsrte.options import FitOptions
 
 SUMMARY_NAME = "summary.csv"

@@ -34,10 +34,10 @@ def baseline_command(
     """Retrieve a training shape of the model and its similarity transform with a baseline."""
     import numpy as np
 
-    from jsrte.baselines.api import load_baseline_query, run_baseline
+    from jsrte.atomic import output_dir
     from jsrte.baselines.database import ShapeDatabase
+    from jsrte.baselines.run import load_baseline_query, run_baseline
     from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs
-    from jsrte.io import output_dir
     from jsrte.model.registry import resolve_model
 
     if name not in BASELINE_NAMES:

@@ -32,10 +32,10 @@ def encode_command(
     overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
 ) -> None:
     """Store a shape as its latent code and similarity transform (the paper's compression)."""
+    from jsrte.atomic import write_bytes_atomic
     from jsrte.cli.fit_options import check_preset, parse_vector
+    from jsrte.codec.convert import code_from_fit_dir, code_from_result
     from jsrte.codec.format import ENCODINGS, encode
-    from jsrte.codec.shapes import code_from_fit_dir, code_from_result
-    from jsrte.io import write_bytes_atomic
 
     if latent not in ENCODINGS:
         raise JsrteError(f"unknown --latent {latent!r}; known: {', '.join(ENCODINGS)}")
@@ -71,7 +71,7 @@ def decode_command(
     overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
 ) -> None:
     """Turn a shape code back into a mesh, in the scan's frame (or canonical with --canonical)."""
-    from jsrte.codec.shapes import mesh_from_code, model_for_code, read_code
+    from jsrte.codec.convert import mesh_from_code, model_for_code, read_code
     from jsrte.geometry.mesh import save_mesh
 
     if out.suffix.lower() not in MESH_OUTPUT_SUFFIXES:

@@ -82,8 +82,8 @@ def synthetic_command(
     random transforms from random initializations around the truth."""
     from dataclasses import replace
 
+    from jsrte.atomic import output_dir
     from jsrte.experiments.synthetic import RUNS_NAME, SUMMARY_MD, SyntheticConfig, run_synthetic
-    from jsrte.io import output_dir
     from jsrte.shapes import CATEGORIES
 
     if scale not in SYNTHETIC_SCALES:
@@ -152,8 +152,8 @@ def compression_command(
     VC-0.1, VC-0.2), file size and F@5% against the original."""
     from dataclasses import replace
 
+    from jsrte.atomic import output_dir
     from jsrte.experiments.compression import SOURCES, TABLE_MD, CompressionConfig, run_compression
-    from jsrte.io import output_dir
     from jsrte.shapes import check_category
 
     check_category(category)

@@ -28,9 +28,9 @@ def fit_command(
     progress: bool = typer.Option(True, help="Show a progress bar."),
 ) -> None:
     """Fit the model to a scan: latent code + similarity transform (the paper's JSRTE)."""
+    from jsrte.atomic import output_dir
     from jsrte.fit import fit
     from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs
-    from jsrte.io import output_dir
 
     options = opt.fit_options(preset=preset, up=up, viewpoint=viewpoint, line_of_sight=line_of_sight,
                               free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, device=device,

@@ -26,8 +26,8 @@ def shapes(
     """Generate shapes 0..n-1 of a procedural set, reproducibly from the set seed."""
     from tqdm import tqdm
 
+    from jsrte.atomic import output_dir
     from jsrte.formats import MESH_FILE_SUFFIXES
-    from jsrte.io import output_dir
     from jsrte.shapes import check_category, generate_shape, shape_seed, write_shape
     from jsrte.shapes.sheet import MAX_SHEET_SHAPES, render_sheet
 

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from jsrte.atomic import write_bytes_atomic, write_with
 from jsrte.errors import JsrteError
 from jsrte.fit.result import FitResult
-from jsrte.io import write_bytes_atomic, write_with
 from jsrte.metrics.surface import fscore
 
 PAPER_TABLE2 = {"harris3d-shot": 0.273, "ourcvfh-icp": 0.367, "pointnet-icp": 0.452, "jsrte": 0.902}

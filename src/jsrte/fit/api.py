@@ -16,8 +16,8 @@ from jsrte.fit.query import SdfQuery
 from jsrte.fit.result import FitResult, HypothesisReport
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
 from jsrte.model.decoder import Decoder
+from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FitSettings
 from jsrte.timing import stage, timed_stage
 

@@ -78,7 +78,7 @@ def class_shape(model: object) -> ClassShape | None:
     meta = model.meta
     name = str(meta.get("category") or model.name)
     if "class_aspect" not in meta or "class_profile" not in meta:
-        from jsrte.model.decode import decode_mesh
+        from jsrte.model.meshing import decode_mesh
 
         mesh = decode_mesh(model.decoder, model.mean_code(), resolution=64).mesh
         if mesh is None:
@@ -141,7 +141,7 @@ QUERY_FORMAT = "jsrte-query"
 
 def save_query(query: SdfQuery, path: str | Path) -> None:
     """Write ``query`` as an ``.npz`` query file, atomically (read back by :func:`read_query_file`)."""
-    from jsrte.io import write_with
+    from jsrte.atomic import write_with
 
     arrays = {"format": np.array(QUERY_FORMAT), "points": query.points, "sdf": query.sdf, "surface": query.surface,
               "up": np.full(3, np.nan) if query.up is None else np.asarray(query.up, float),

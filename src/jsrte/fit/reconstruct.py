@@ -15,7 +15,7 @@ from jsrte.fit.query import SdfQuery
 from jsrte.geometry.mesh import Normalization, normalized, unit_sphere_normalization
 from jsrte.metrics.surface import fscore
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
+from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FitSettings, SdfSampling
 from jsrte.sdf.mesh_sdf import sample_sdf
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from jsrte.atomic import write_with
 from jsrte.errors import JsrteError
 from jsrte.formats import MESH_FILE_SUFFIXES, check_ply_complete
-from jsrte.io import write_with
 from jsrte.presets import SdfSampling
 
 

@@ -423,7 +423,7 @@ def truth_fscore(mesh: Any, truth: Any) -> float:
 
 def _load_code(entry: FitEntry) -> FitItem:
     """A ``.jsrte`` code decoded with its shipped model: the mesh and the pose (no scan)."""
-    from jsrte.codec.shapes import mesh_from_code, model_for_code, read_code
+    from jsrte.codec.convert import mesh_from_code, model_for_code, read_code
 
     assert entry.code is not None
     code = read_code(entry.code)  # a corrupt code is the whole input: a one-line error

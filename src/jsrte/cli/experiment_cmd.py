@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import resolve_device, set_threads
+from jsrte.cli.common import check_threads, resolve_device, set_threads
 from jsrte.errors import JsrteError
 from jsrte.experiments.settings import SCENARIOS, SYNTHETIC_SCALES, CompressionSettings
 from jsrte.presets import PRESETS
@@ -112,6 +112,7 @@ def synthetic_command(
         if (out / RUNS_NAME).exists() and not overwrite:
             raise JsrteError(f"holds an unfinished run ({RUNS_NAME}); pass --resume to continue it or "
                              "--overwrite to replace it", out)
+    check_threads(threads)
     torch_device = resolve_device(device)
     models = {c: m if m is None else m.to(torch_device) for c, m in load_models(cats, model).items()}
     if all(m is None for m in models.values()):
@@ -171,6 +172,7 @@ def compression_command(
     if samples:
         chosen = replace(chosen, sampling=replace(chosen.sampling, n_points=samples))
     _check_out(out, TABLE_MD, overwrite)
+    check_threads(threads)
     loaded = load_models((category,), model)[category]
     if loaded is None:
         raise JsrteError(f"no shipped model for {category!r}; pass --model PATH")

@@ -47,9 +47,9 @@ def originals() -> dict[str, Path]:
     from jsrte.atomic import write_json_atomic
     from jsrte.codec.format import ShapeCode, encode
     from jsrte.fit.query import SdfQuery, save_query
-    from jsrte.fit.result import FitResult
     from jsrte.geometry.sim3 import Sim3
     from jsrte.model.checkpoint import file_hash, save_model
+    from jsrte.result import FitResult
     from jsrte.sdf.mesh_sdf import SdfSamples
 
     root = Path(tempfile.mkdtemp(prefix="jsrte-fuzz-originals-"))

@@ -21,9 +21,9 @@ from jsrte.errors import JsrteError
 
 if TYPE_CHECKING:
     from jsrte.fit.query import SdfQuery
-    from jsrte.fit.result import FitResult
     from jsrte.model.checkpoint import DeepSdfModel
     from jsrte.options import FitOptions
+    from jsrte.result import FitResult
 
 __version__ = "0.1.0"
 

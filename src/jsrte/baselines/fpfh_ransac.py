@@ -21,8 +21,8 @@ import numpy as np
 from jsrte.baselines.cloud import unit_cloud
 from jsrte.baselines.database import Arrays, ShapeDatabase
 from jsrte.baselines.protocol import BaselineFailed, Stopwatch, baseline_result, check_query
-from jsrte.fit.result import FitResult
 from jsrte.geometry.sim3 import Sim3
+from jsrte.result import FitResult
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from jsrte.baselines.pointnet import (
 )
 from jsrte.baselines.protocol import Stopwatch, baseline_result, check_query
 from jsrte.baselines.registration import IcpSettings, register
-from jsrte.fit.result import FitResult
+from jsrte.result import FitResult
 
 CANONICAL_UP = np.array([0.0, 1.0, 0.0])
 

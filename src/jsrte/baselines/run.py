@@ -10,7 +10,7 @@ import numpy as np
 
 from jsrte.baselines import get_baseline
 from jsrte.baselines.database import ShapeDatabase
-from jsrte.fit.result import FitResult
+from jsrte.result import FitResult
 
 MESH_SURFACE_POINTS = 20_000
 """Points sampled on a complete-mesh query (``jsrte fit`` uses as many surface points)."""

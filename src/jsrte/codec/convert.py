@@ -15,9 +15,9 @@ import trimesh
 
 from jsrte.codec.format import HASH_BYTES, ShapeCode, decode, model_hash_prefix
 from jsrte.errors import JsrteError
-from jsrte.fit.result import FitResult
 from jsrte.geometry.sim3 import Sim3
 from jsrte.model.checkpoint import DeepSdfModel, file_hash, read_metadata
+from jsrte.result import FitResult
 
 
 def read_code(path: str | Path) -> ShapeCode:

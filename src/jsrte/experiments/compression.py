@@ -46,13 +46,13 @@ from jsrte.experiments.settings import PAPER_TABLE3, CompressionSettings, Synthe
 from jsrte.extract.marching import extract_coarse_to_fine
 from jsrte.fit.api import fit_query
 from jsrte.fit.query import SdfQuery
-from jsrte.fit.result import FitResult
 from jsrte.geometry.mesh import Normalization, unit_sphere_normalization
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel, file_hash
 from jsrte.model.meshing import decode_mesh
 from jsrte.presets import Preset
+from jsrte.result import FitResult
 from jsrte.sdf.mesh_sdf import signed_distance
 from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 

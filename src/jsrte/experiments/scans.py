@@ -17,8 +17,8 @@ import numpy as np
 
 from jsrte.atomic import write_bytes_atomic, write_with
 from jsrte.errors import JsrteError
-from jsrte.fit.result import FitResult
 from jsrte.metrics.surface import fscore
+from jsrte.result import FitResult
 
 PAPER_TABLE2 = {"harris3d-shot": 0.273, "ourcvfh-icp": 0.367, "pointnet-icp": 0.452, "jsrte": 0.902}
 """The paper's mean F@5% on 58 Redwood chair scans (Table 2); FPFH+RANSAC+ICP is ours only."""

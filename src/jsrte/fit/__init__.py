@@ -8,9 +8,9 @@ import numpy as np
 
 from jsrte.fit.api import fit_query
 from jsrte.fit.query import SdfQuery
-from jsrte.fit.result import FitResult
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.options import FitOptions
+from jsrte.result import FitResult
 
 
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair",

@@ -13,12 +13,12 @@ from jsrte.fit.init import ClassGeometry, initial_hypotheses
 from jsrte.fit.optimize import Optimized, loss_clamp, optimize
 from jsrte.fit.params import Init, LatentPrior
 from jsrte.fit.query import SdfQuery
-from jsrte.fit.result import FitResult, HypothesisReport
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decoder import Decoder
 from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FitSettings
+from jsrte.result import FitResult, HypothesisReport
 from jsrte.timing import stage, timed_stage
 
 AXIS_PARAMETERS = frozenset({"psi", "rho"})

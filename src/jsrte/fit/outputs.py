@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from jsrte.atomic import write_json_atomic
-from jsrte.fit.result import FitResult
 from jsrte.geometry.mesh import save_mesh
+from jsrte.result import FitResult
 from jsrte.timing import timed_stage
 
 RESULT_NAME = "fit.json"

@@ -26,7 +26,7 @@ from jsrte.errors import JsrteError
 
 
 def test_jsrte_fit_stays_the_function_after_the_subpackage_is_imported():
-    import jsrte.fit.api  # noqa: F401
+    import jsrte.fit.solve  # noqa: F401
     from jsrte.fit import fit_query  # noqa: F401  (imports the subpackage jsrte.fit)
 
     assert inspect.isfunction(jsrte.fit)
@@ -233,7 +233,7 @@ def test_altered_weights_are_detected_by_the_recorded_sha256(tmp_path):
 
 
 def test_fitting_a_model_that_gives_nan_is_a_clean_error():
-    from jsrte.fit.api import fit_query
+    from jsrte.fit.solve import fit_query
     from jsrte.presets import get_preset
 
     model = octahedron_model()

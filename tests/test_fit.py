@@ -7,11 +7,11 @@ import pytest
 import torch
 
 from analytic import LShapeDecoder
-from jsrte.fit.api import fit_query
 from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
 from jsrte.fit.optimize import SampleDrawer, _prune, hypothesis_losses, optimize
 from jsrte.fit.params import HypothesisBatch, Init
 from jsrte.fit.query import SdfQuery
+from jsrte.fit.solve import fit_query
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.meshing import decode_mesh

@@ -9,12 +9,12 @@ import torch
 
 from analytic import LShapeDecoder, WideningLShapeDecoder
 from jsrte.errors import JsrteError
-from jsrte.fit.api import fit_query
 from jsrte.fit.gauss_newton import Linearization, Problem, damped_step, free_columns, linearize, pack, solve
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
 from jsrte.fit.optimize import hypothesis_losses
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
 from jsrte.fit.query import SdfQuery
+from jsrte.fit.solve import fit_query
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decoder import Decoder, DecoderConfig

@@ -131,7 +131,7 @@ def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair"
 
 def load_blob(model: str | Path) -> ModelBlob:
     """Read the model once; compute its class geometry here rather than in every worker."""
-    from jsrte.fit.api import class_geometry
+    from jsrte.fit.solve import class_geometry
     from jsrte.model.checkpoint import file_hash
     from jsrte.model.registry import resolve_model, resolve_model_path
 

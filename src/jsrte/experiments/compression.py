@@ -44,8 +44,8 @@ from jsrte.codec import ShapeCode, code_from_result, decode, encode
 from jsrte.errors import JsrteError
 from jsrte.experiments.settings import PAPER_TABLE3, CompressionSettings, SyntheticTruth
 from jsrte.extract.marching import extract_coarse_to_fine
-from jsrte.fit.api import fit_query
 from jsrte.fit.query import SdfQuery
+from jsrte.fit.solve import fit_query
 from jsrte.geometry.mesh import Normalization, unit_sphere_normalization
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg
 from jsrte.metrics.surface import bounding_sphere, fscore

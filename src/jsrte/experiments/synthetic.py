@@ -27,10 +27,10 @@ import trimesh
 from jsrte.atomic import write_bytes_atomic, write_with
 from jsrte.errors import JsrteError
 from jsrte.experiments.settings import SCENARIOS, SYNTHETIC_FSCORE_GOOD, SyntheticScenario, SyntheticTruth
-from jsrte.fit.api import latent_prior
 from jsrte.fit.optimize import optimize
 from jsrte.fit.params import Init
 from jsrte.fit.query import SdfQuery, query_from_mesh
+from jsrte.fit.solve import latent_prior
 from jsrte.geometry.mesh import normalized
 from jsrte.geometry.sim3 import Sim3, rotation_angle_deg, rotation_from_paper
 from jsrte.metrics.surface import fscore

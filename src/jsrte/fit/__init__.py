@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from jsrte.fit.api import fit_query
 from jsrte.fit.query import SdfQuery
+from jsrte.fit.solve import fit_query
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.options import FitOptions
 from jsrte.result import FitResult

@@ -1,4 +1,4 @@
-"""``fit``: the JSRTE algorithm (paper Algorithm 1) on an SDF query."""
+"""The JSRTE algorithm (paper Algorithm 1) on an SDF query: starts, minimization, and the winner."""
 
 from __future__ import annotations
 

@@ -64,9 +64,9 @@ def get_baseline(name: str, **options: object) -> Baseline:
 def __getattr__(name: str) -> Any:
     """Import the heavier names on first use (keeps ``jsrte --help`` and the CLI start fast)."""
     if name in ("Baseline", "BaselineFailed"):
-        from jsrte.baselines import base
+        from jsrte.baselines import protocol
 
-        return getattr(base, name)
+        return getattr(protocol, name)
     if name == "ShapeDatabase":
         from jsrte.baselines.database import ShapeDatabase
 

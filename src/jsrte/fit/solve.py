@@ -61,8 +61,6 @@ def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
 
         return solve(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
                      progress=progress)
-    if settings.solver != "adam":
-        raise ValueError(f"unknown solver {settings.solver!r}; known: adam, gauss-newton")
     return optimize(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
                     progress=progress)
 

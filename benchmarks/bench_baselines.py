@@ -41,8 +41,8 @@ def main() -> None:
     import torch
 
     from jsrte.baselines import BaselineFailed, ShapeDatabase, get_baseline
-    from jsrte.baselines.api import load_baseline_query
     from jsrte.baselines.pointnet import PointNetSettings
+    from jsrte.baselines.run import load_baseline_query
     from jsrte.geometry.mesh import normalized
     from jsrte.scans.scanner import scan_mesh, write_scan
     from jsrte.shapes import EVAL_SET_SEED, TRAIN_SET_SEED, generate_set

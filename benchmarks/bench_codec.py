@@ -49,7 +49,7 @@ def codec_table(repeats: int) -> None:
 
 
 def mesh_timing(model_name: str, resolution: int) -> None:
-    from jsrte.codec.shapes import mesh_from_code
+    from jsrte.codec.convert import mesh_from_code
     from jsrte.model.registry import resolve_model
 
     model = resolve_model(model_name)

@@ -102,7 +102,7 @@ def compare(name: str, fn, resolution: int, skip_dense: bool) -> list[str]:
 
 def shipped_shapes(spec: str) -> list[tuple[str, object]]:
     """'chair:20,21;table:0' -> [(label, sdf function of that training code of the shipped model)]."""
-    from jsrte.model.decode import sdf_function
+    from jsrte.model.meshing import sdf_function
     from jsrte.model.registry import resolve_model
 
     shapes = []

@@ -51,8 +51,8 @@ def main() -> None:
     import torch
 
     from jsrte.experiments.truth import score_against_truth
-    from jsrte.fit.api import fit_query
     from jsrte.fit.query import read_query_file
+    from jsrte.fit.solve import fit_query
     from jsrte.model.registry import resolve_model
 
     torch.set_num_threads(args.threads)

@@ -30,10 +30,10 @@ def main() -> None:
     import numpy as np
     import torch
 
+    from jsrte.fit.reconstruct import LATENT_ONLY_ADAM, LATENT_ONLY_GAUSS_NEWTON, reconstruct_latent
     from jsrte.geometry.mesh import normalized
     from jsrte.metrics.surface import fscore
-    from jsrte.model.decode import decode_mesh
-    from jsrte.model.reconstruct import LATENT_ONLY_ADAM, LATENT_ONLY_GAUSS_NEWTON, reconstruct_latent
+    from jsrte.model.meshing import decode_mesh
     from jsrte.model.registry import resolve_model
     from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 

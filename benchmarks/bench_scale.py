@@ -67,6 +67,7 @@ def make_model(path: Path) -> None:
 
 def bench_fit_many(work: Path, scans: int, workers: list[int], preset: str, hypotheses: int | None) -> None:
     from jsrte.batch import fit_many
+    from jsrte.options import FitOptions
 
     folder, model = work / "scans", work / "model.safetensors"
     make_scans(folder, scans)
@@ -80,8 +81,8 @@ def bench_fit_many(work: Path, scans: int, workers: list[int], preset: str, hypo
         shutil.rmtree(out, ignore_errors=True)
         cpu = _children_cpu()
         started = time.perf_counter()
-        report = fit_many(folder, out=out, model=model, preset=preset, hypotheses=hypotheses, workers=w,
-                          progress=False)
+        report = fit_many(folder, out=out, model=model, options=FitOptions(preset=preset, hypotheses=hypotheses),
+                          workers=w, progress=False)
         wall = time.perf_counter() - started
         cpu = _children_cpu() - cpu
         assert report.failed == 0, report.rows

@@ -36,13 +36,13 @@ def main() -> None:
     import numpy as np
     import torch
 
-    from jsrte.fit.api import AXIS_PARAMETERS, class_geometry, latent_prior
     from jsrte.fit.floor import with_below_floor_samples
     from jsrte.fit.gauss_newton import ProblemDrawer, pack, screen_yaws
     from jsrte.fit.init import initial_hypotheses
     from jsrte.fit.optimize import loss_clamp, optimize
     from jsrte.fit.params import HypothesisBatch
     from jsrte.fit.query import read_query_file
+    from jsrte.fit.solve import AXIS_PARAMETERS, class_geometry, latent_prior
     from jsrte.geometry.sim3 import rotation_angle_deg
     from jsrte.model.registry import resolve_model
     from jsrte.presets import FAST

@@ -14,7 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-from jsrte.fit.api import class_geometry
+from jsrte.fit.solve import class_geometry
 from jsrte.model.checkpoint import load_model, save_model
 from jsrte.model.registry import PRETRAINED_DIR
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -94,3 +95,14 @@ def octahedron_model(bias: float = -0.5, name: str = "octa", **meta):
         decoder.head.weight[0, 6], decoder.head.weight[0, 7] = 0.2, -0.2
         decoder.head.bias.fill_(bias)
     return DeepSdfModel(decoder=decoder, codes=torch.zeros(2, d), meta={"name": name, "category": "chair", **meta})
+
+
+def octahedron_query(radius: float = 0.5, n: int = 3000, seed: int = 0):
+    """SDF samples (an L1 ball of ``radius``) of the octahedron model's own shape."""
+    from jsrte.fit.query import SdfQuery
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1.0, 1.0, (n, 3))
+    sdf = np.abs(points).sum(1) - radius
+    surface = points[np.abs(sdf) < 0.05]
+    return SdfQuery(points, sdf, surface)

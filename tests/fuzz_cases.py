@@ -44,13 +44,12 @@ def originals() -> dict[str, Path]:
     import trimesh
 
     from analytic import octahedron_model
+    from jsrte.atomic import write_json_atomic
     from jsrte.codec.format import ShapeCode, encode
-    from jsrte.fit.optimize import SdfQuery
-    from jsrte.fit.query import save_query
-    from jsrte.fit.result import FitResult
+    from jsrte.fit.query import SdfQuery, save_query
     from jsrte.geometry.sim3 import Sim3
-    from jsrte.io import write_json_atomic
     from jsrte.model.checkpoint import file_hash, save_model
+    from jsrte.result import FitResult
     from jsrte.sdf.mesh_sdf import SdfSamples
 
     root = Path(tempfile.mkdtemp(prefix="jsrte-fuzz-originals-"))
@@ -143,7 +142,7 @@ def _query(path: Path) -> None:
 
 
 def _code(path: Path) -> None:
-    from jsrte.codec.shapes import read_code
+    from jsrte.codec.convert import read_code
 
     code = read_code(path)
     assert np.isfinite(code.latent).all() and code.transform.s > 0
@@ -172,7 +171,7 @@ def _train_state(path: Path) -> None:
 
 
 def _fit_json(path: Path) -> None:
-    from jsrte.codec.shapes import code_from_fit_dir
+    from jsrte.codec.convert import code_from_fit_dir
 
     code = code_from_fit_dir(path.parent)
     assert np.isfinite(code.latent).all() and code.transform.s > 0

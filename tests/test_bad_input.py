@@ -19,25 +19,14 @@ import torch
 import trimesh
 
 import jsrte
-from analytic import octahedron_model
+from analytic import octahedron_model, octahedron_query
 from jsrte.errors import JsrteError
 
 # --- the Python API ---------------------------------------------------------------------------
 
 
-def octahedron_query(radius: float = 0.5, n: int = 3000, seed: int = 0):
-    """SDF samples (an L1 ball of ``radius``) of the octahedron model's own shape."""
-    from jsrte.fit.optimize import SdfQuery
-
-    rng = np.random.default_rng(seed)
-    points = rng.uniform(-1.0, 1.0, (n, 3))
-    sdf = np.abs(points).sum(1) - radius
-    surface = points[np.abs(sdf) < 0.05]
-    return SdfQuery(points, sdf, surface)
-
-
 def test_jsrte_fit_stays_the_function_after_the_subpackage_is_imported():
-    import jsrte.fit.api  # noqa: F401
+    import jsrte.fit.solve  # noqa: F401
     from jsrte.fit import fit_query  # noqa: F401  (imports the subpackage jsrte.fit)
 
     assert inspect.isfunction(jsrte.fit)
@@ -51,7 +40,7 @@ def test_jsrte_fit_stays_the_function_after_the_subpackage_is_imported():
 def test_jsrte_fit_shows_the_real_signature():
     real = inspect.signature(sys.modules["jsrte.fit"].fit)
     assert inspect.signature(jsrte.fit) == real
-    assert "query" in real.parameters and "units_check" in real.parameters
+    assert "query" in real.parameters and "options" in real.parameters
     for line in (jsrte.__doc__ or "").split():
         if line.startswith("docs/"):  # every page the package docstring names exists
             from pathlib import Path
@@ -244,7 +233,7 @@ def test_altered_weights_are_detected_by_the_recorded_sha256(tmp_path):
 
 
 def test_fitting_a_model_that_gives_nan_is_a_clean_error():
-    from jsrte.fit.api import fit_query
+    from jsrte.fit.solve import fit_query
     from jsrte.presets import get_preset
 
     model = octahedron_model()

@@ -14,9 +14,9 @@ from jsrte.baselines import pcl as pcl_binding
 from jsrte.baselines.fpfh_ransac import FpfhSettings
 from jsrte.baselines.pointnet import PointNetSettings, canonicalize, train_classifier
 from jsrte.baselines.registration import coarse_alignment, icp_assignment, register, upright_rotation
-from jsrte.fit.result import FitResult
 from jsrte.geometry.mesh import unit_sphere_normalization
 from jsrte.geometry.sim3 import Sim3, rotation_angle_deg
+from jsrte.result import FitResult
 from jsrte.shapes import generate_set
 
 needs_pcl = pytest.mark.skipif(not pcl_binding.available(),

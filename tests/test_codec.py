@@ -286,10 +286,10 @@ def models(tmp_path):
 
 def fit_folder(tmp_path, model_path, latent, name="fit"):
     """A folder as 'jsrte fit' writes it (fit.json only), for ``latent`` and a float64 transform."""
+    from jsrte.atomic import write_json_atomic
     from jsrte.fit.outputs import RESULT_NAME
-    from jsrte.fit.result import FitResult
-    from jsrte.io import write_json_atomic
     from jsrte.model.checkpoint import file_hash
+    from jsrte.result import FitResult
 
     transform = Sim3(0.8, axis_angle_matrix(np.array([0.0, 1.0, 0.0]), 1.1), [0.3, 0.4, -2.0])
     result = FitResult("jsrte", transform, np.asarray(latent, np.float32), None, 0.01, {"name": "loss"},
@@ -302,7 +302,7 @@ def fit_folder(tmp_path, model_path, latent, name="fit"):
 
 def direct_mesh(model_path, latent, transform, resolution):
     from jsrte.model.checkpoint import load_model
-    from jsrte.model.decode import decode_mesh
+    from jsrte.model.meshing import decode_mesh
 
     mesh = decode_mesh(load_model(model_path).decoder, latent, resolution=resolution).mesh
     return transform.apply(mesh.vertices), mesh.faces
@@ -403,7 +403,7 @@ def test_encode_a_scan_runs_the_fit(tmp_path, monkeypatch, capsys, models):
     """A scan file goes through jsrte.fit.fit (stubbed here: the fit has its own tests)."""
     import importlib
 
-    from jsrte.fit.result import FitResult
+    from jsrte.result import FitResult
 
     fit_module = importlib.import_module("jsrte.fit")  # the subpackage (``jsrte.fit`` is the function)
 

@@ -8,8 +8,8 @@ import torch
 from jsrte.cli.common import resolve_device
 from jsrte.errors import JsrteError
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import sdf_function
 from jsrte.model.decoder import Decoder, DecoderConfig, decoder_device
+from jsrte.model.meshing import sdf_function
 
 NO_GPU = not torch.cuda.is_available()
 

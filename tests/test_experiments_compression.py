@@ -19,8 +19,9 @@ from jsrte.experiments.compression import (
     run_compression,
     vertex_clustering,
 )
+from jsrte.experiments.settings import PAPER_TABLE3, CompressionSettings
 from jsrte.metrics.surface import fscore
-from jsrte.presets import PAPER_TABLE3, SMOKE, CompressionSettings
+from jsrte.presets import SMOKE
 
 
 def test_densify_rebuilds_the_same_surface_with_about_the_target_faces():

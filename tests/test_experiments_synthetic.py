@@ -15,6 +15,7 @@ from analytic import LShapeDecoder
 from cli_runner import run_cli
 from jsrte.errors import JsrteError
 from jsrte.experiments.plots import binned_counts
+from jsrte.experiments.settings import SCENARIOS, SyntheticTruth
 from jsrte.experiments.synthetic import (
     Pose,
     SyntheticCase,
@@ -28,11 +29,11 @@ from jsrte.experiments.synthetic import (
     score_outcome,
     uniform_directions,
 )
-from jsrte.fit.optimize import SdfQuery
+from jsrte.fit.query import SdfQuery
 from jsrte.geometry.sim3 import rotation_angle_deg
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
-from jsrte.presets import SCENARIOS, SMOKE, SyntheticTruth
+from jsrte.model.meshing import decode_mesh
+from jsrte.presets import SMOKE
 from jsrte.sdf.mesh_sdf import signed_distance
 
 N = 20_000

@@ -7,13 +7,14 @@ import pytest
 import torch
 
 from analytic import LShapeDecoder
-from jsrte.fit.api import fit_query
 from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
-from jsrte.fit.optimize import SampleDrawer, SdfQuery, _adam, _prune, hypothesis_losses, optimize
+from jsrte.fit.optimize import SampleDrawer, _adam, _prune, hypothesis_losses, optimize
 from jsrte.fit.params import HypothesisBatch, Init
+from jsrte.fit.query import SdfQuery
+from jsrte.fit.solve import fit_query
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
+from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FAST
 from jsrte.sdf.mesh_sdf import signed_distance
 
@@ -216,28 +217,3 @@ def test_pruning_carries_the_kept_hypotheses_adam_moments(lshape):
     step(whole, whole_optimizer)
     for (name, p), (_, q) in zip(batch.named_parameters(), whole.named_parameters(), strict=True):
         torch.testing.assert_close(p.detach(), q.detach()[keep], msg=name)
-
-
-def test_every_advertised_mesh_format_fits_through_the_cli(tmp_path, monkeypatch, capsys):
-    """A complete mesh in each format ``jsrte fit --help`` lists fits end to end, overlay included
-    (a GLB once fitted for seconds, then failed while drawing the overlay)."""
-    import json
-
-    import trimesh
-
-    from analytic import octahedron_model
-    from cli_runner import run_cli
-    from jsrte.model.checkpoint import save_model
-
-    model = tmp_path / "model.safetensors"
-    save_model(octahedron_model(), model)
-    mesh = trimesh.creation.box(extents=(0.6, 0.9, 0.5))
-    for suffix in (".obj", ".off", ".stl", ".glb"):
-        path = tmp_path / f"box{suffix}"
-        mesh.export(path)
-        out = tmp_path / f"fit{suffix[1:]}"
-        code, _, err = run_cli(monkeypatch, capsys, "fit", path, "--model", model, "--preset", "smoke",
-                               "--hypotheses", "2", "--out", out, "--no-progress", "--threads", "1")
-        assert code == 0, (suffix, err)
-        assert (out / "overlay.png").stat().st_size > 0
-        assert json.loads((out / "fit.json").read_text())["input"].endswith(suffix)

@@ -23,12 +23,13 @@ from jsrte.model.checkpoint import save_model
 from jsrte.model.data import procedural_training_data
 from jsrte.model.decoder import DecoderConfig
 from jsrte.model.train import Trainer, TrainSettings
+from jsrte.options import FitOptions
 from jsrte.presets import SdfSampling
 from jsrte.scans import ScannerSettings, scan_mesh, write_scan
 from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 
 JSRTE = [sys.executable, "-m", "jsrte.cli"]
-FAST = {"preset": "smoke", "hypotheses": 2, "progress": False}
+FAST = {"options": FitOptions(preset="smoke", hypotheses=2), "progress": False}
 TINY = DecoderConfig(latent_size=8, hidden=32, depth=4, skip_layer=2)
 SCANNER = ScannerSettings(views=2, width=64, height=48)
 
@@ -251,11 +252,14 @@ def test_summary_records_the_model_and_preset(first_run, model_file):
         ("tiny-chair", file_hash(model_file), "smoke")}
 
 
-def test_results_of_another_model_or_preset_are_not_reused(first_run, model_file, tmp_path):
+def test_results_of_another_model_preset_or_options_are_not_reused(first_run, model_file, tmp_path):
     folder, out, _ = first_run
     stamps = {p: p.stat().st_mtime_ns for p in out.glob("*/fit.json")}
     with pytest.raises(JsrteError, match=r"made with model 'tiny-chair' .* preset 'smoke'.*--overwrite"):
-        fit_many(folder, out=out, model=model_file, workers=1, **(FAST | {"preset": "fast"}))
+        fit_many(folder, out=out, model=model_file, workers=1, **(FAST | {"options": FitOptions(preset="fast")}))
+    with pytest.raises(JsrteError, match=r"fitted with other options \(seed 0 there, 3 now\).*--overwrite"):
+        fit_many(folder, out=out, model=model_file, workers=1,
+                 **(FAST | {"options": FitOptions(preset="smoke", hypotheses=2, seed=3)}))
     from jsrte.model.checkpoint import load_model
 
     other = tmp_path / "table.safetensors"

@@ -6,8 +6,9 @@ import torch
 
 from analytic import LShapeDecoder, SphereDecoder
 from jsrte.fit.floor import with_below_floor_samples
-from jsrte.fit.optimize import SdfQuery, hypothesis_losses
+from jsrte.fit.optimize import hypothesis_losses
 from jsrte.fit.params import HypothesisBatch, Init
+from jsrte.fit.query import SdfQuery
 from jsrte.geometry.sim3 import rotation_between
 
 UP = np.array([0.2, 0.95, -0.1]) / np.linalg.norm([0.2, 0.95, -0.1])

@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from analytic import SphereDecoder
-from jsrte.fit.api import latent_prior
-from jsrte.fit.optimize import SdfQuery, latent_penalty, optimize
+from jsrte.fit.optimize import latent_penalty, optimize
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
+from jsrte.fit.query import SdfQuery
+from jsrte.fit.solve import latent_prior
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.presets import FAST
 

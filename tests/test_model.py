@@ -17,8 +17,8 @@ from safetensors.torch import load_file
 from jsrte.errors import JsrteError
 from jsrte.metrics.surface import fscore
 from jsrte.model.checkpoint import DeepSdfModel, load_model, read_metadata, save_model
-from jsrte.model.decode import decode_mesh
 from jsrte.model.decoder import ARCHITECTURES, Decoder, DecoderConfig
+from jsrte.model.meshing import decode_mesh
 from jsrte.model.train import STATE_NAME, Trainer, TrainingData, TrainSettings, batch_indices
 from jsrte.presets import SdfSampling
 from jsrte.sdf.mesh_sdf import sample_sdf

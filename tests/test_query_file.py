@@ -7,10 +7,9 @@ import torch
 from analytic import LShapeDecoder
 from jsrte.errors import JsrteError
 from jsrte.fit import fit
-from jsrte.fit.optimize import SdfQuery
-from jsrte.fit.query import is_query_file, load_query, read_query_file, save_query
+from jsrte.fit.query import SdfQuery, is_query_file, load_query, read_query_file, save_query
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
+from jsrte.model.meshing import decode_mesh
 from jsrte.scans.scanner import scan_mesh, write_scan
 
 

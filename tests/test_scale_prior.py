@@ -8,8 +8,9 @@ import pytest
 import torch
 
 from analytic import SphereDecoder
-from jsrte.fit.optimize import SdfQuery, hypothesis_losses, optimize
+from jsrte.fit.optimize import hypothesis_losses, optimize
 from jsrte.fit.params import HypothesisBatch, Init
+from jsrte.fit.query import SdfQuery
 from jsrte.presets import FAST
 
 

@@ -20,33 +20,28 @@ from typing import TYPE_CHECKING
 from jsrte.errors import JsrteError
 
 if TYPE_CHECKING:
-    import numpy as np
-    import torch
-
-    from jsrte.fit.optimize import SdfQuery
-    from jsrte.fit.result import FitResult
+    from jsrte.fit.query import SdfQuery
     from jsrte.model.checkpoint import DeepSdfModel
+    from jsrte.options import FitOptions
+    from jsrte.result import FitResult
 
 __version__ = "0.1.0"
 
 
-def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
-        up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool | None = None,
-        free_axis: bool = False, at: np.ndarray | None = None,
-        hypotheses: int | None = None, seed: int = 0, progress: bool = False,
-        device: str | torch.device | None = None, units_check: bool = True) -> FitResult:
+def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair",
+        options: FitOptions | None = None, progress: bool = False, **changes: object) -> FitResult:
     """Find the shape and the similarity transform that explain ``query`` (a scan file, a mesh,
     SDF samples, a query file, or an ``SdfQuery``) with ``model`` (a shipped name, a file, or a
     loaded model). Returns a ``FitResult`` (``.transform``, ``.latent``, ``.mesh``, ``.to_json()``).
 
-    The same function as ``from jsrte.fit import fit`` (imported on first call, to keep
-    ``import jsrte`` light); its docstring describes every parameter.
+    Fit options (``jsrte.options.FitOptions``: preset, up, viewpoints, line_of_sight, free_axis,
+    at, hypotheses, seed, device, units_check) come as ``options``, or by name:
+    ``jsrte.fit("scan.ply", model="chair", up=(0, 0, 1))``. The same function as
+    ``from jsrte.fit import fit`` (imported on first call, to keep ``import jsrte`` light).
     """
     from jsrte.fit import fit as _fit
 
-    return _fit(query, model=model, preset=preset, up=up, viewpoints=viewpoints, line_of_sight=line_of_sight,
-                free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, progress=progress, device=device,
-                units_check=units_check)
+    return _fit(query, model=model, options=options, progress=progress, **changes)
 
 
 class _Package(types.ModuleType):

@@ -26,7 +26,7 @@ from typing import Literal  # noqa: E402
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
-from jsrte.io import write_with  # noqa: E402
+from jsrte.atomic import write_with  # noqa: E402
 
 Backend = Literal["auto", "pyrender", "matplotlib"]
 

@@ -37,8 +37,8 @@ from typing import TYPE_CHECKING, Any
 from jsrte.errors import JsrteError
 
 if TYPE_CHECKING:
-    from jsrte.baselines.base import Baseline, BaselineFailed
     from jsrte.baselines.database import ShapeDatabase
+    from jsrte.baselines.protocol import Baseline, BaselineFailed
 
 BASELINE_NAMES = ("harris3d-shot", "ourcvfh-icp", "pointnet-icp", "fpfh-ransac-icp")
 """The baselines, in the order of the paper's table (Open3D's last)."""
@@ -64,9 +64,9 @@ def get_baseline(name: str, **options: object) -> Baseline:
 def __getattr__(name: str) -> Any:
     """Import the heavier names on first use (keeps ``jsrte --help`` and the CLI start fast)."""
     if name in ("Baseline", "BaselineFailed"):
-        from jsrte.baselines import base
+        from jsrte.baselines import protocol
 
-        return getattr(base, name)
+        return getattr(protocol, name)
     if name == "ShapeDatabase":
         from jsrte.baselines.database import ShapeDatabase
 

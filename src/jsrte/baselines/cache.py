@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from jsrte.io import write_with
+from jsrte.atomic import write_with
 
 
 def cache_dir(*parts: str) -> Path:

@@ -18,11 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jsrte.baselines.base import BaselineFailed, Stopwatch, baseline_result, check_query
 from jsrte.baselines.cloud import unit_cloud
 from jsrte.baselines.database import Arrays, ShapeDatabase
-from jsrte.fit.result import FitResult
+from jsrte.baselines.protocol import BaselineFailed, Stopwatch, baseline_result, check_query
 from jsrte.geometry.sim3 import Sim3
+from jsrte.result import FitResult
 
 
 @dataclass(frozen=True)

@@ -30,11 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from jsrte.baselines import pcl
-from jsrte.baselines.base import BaselineFailed, Stopwatch, baseline_result, check_query
 from jsrte.baselines.cloud import unit_cloud
 from jsrte.baselines.database import Arrays, ShapeDatabase
+from jsrte.baselines.protocol import BaselineFailed, Stopwatch, baseline_result, check_query
 from jsrte.baselines.ransac import ransac_similarity
-from jsrte.fit.result import FitResult
+from jsrte.result import FitResult
 
 
 @dataclass(frozen=True)

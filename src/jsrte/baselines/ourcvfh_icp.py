@@ -23,11 +23,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from jsrte.baselines import pcl
-from jsrte.baselines.base import BaselineFailed, Stopwatch, baseline_result, check_query
 from jsrte.baselines.cloud import unit_cloud
 from jsrte.baselines.database import Arrays, ShapeDatabase
+from jsrte.baselines.protocol import BaselineFailed, Stopwatch, baseline_result, check_query
 from jsrte.baselines.registration import IcpSettings, register
-from jsrte.fit.result import FitResult
+from jsrte.result import FitResult
 
 SIGNATURE_BINS = 239
 """Bins compared: f1, f2, f3 (3 x 45) and the octant shape distribution (8 x 13)."""

@@ -33,9 +33,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from jsrte.atomic import write_with
 from jsrte.baselines.cache import cache_dir, digest
 from jsrte.geometry.sim3 import rotation_between
-from jsrte.io import write_with
 from jsrte.metrics.surface import bounding_sphere
 
 CLASSIFIER_VERSION = 1

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from jsrte.baselines.base import Stopwatch, baseline_result, check_query
 from jsrte.baselines.database import ShapeDatabase
 from jsrte.baselines.pointnet import (
     PointNetSettings,
@@ -24,8 +23,9 @@ from jsrte.baselines.pointnet import (
     save_classifier,
     train_classifier,
 )
+from jsrte.baselines.protocol import Stopwatch, baseline_result, check_query
 from jsrte.baselines.registration import IcpSettings, register
-from jsrte.fit.result import FitResult
+from jsrte.result import FitResult
 
 CANONICAL_UP = np.array([0.0, 1.0, 0.0])
 

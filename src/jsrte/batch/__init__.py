@@ -5,8 +5,8 @@ sends the others as jobs (:mod:`jsrte.batch.worker`) to a backend (:mod:`jsrte.b
 :mod:`jsrte.batch.ray_backend`); results and ``summary.csv`` are written by the driver alone.
 """
 
-from jsrte.batch.inputs import SCAN_SUFFIXES, find_truth, list_scans, result_names
+from jsrte.batch.inputs import find_truth, list_scans, result_names
 from jsrte.batch.run import COLUMNS, SUMMARY_NAME, BatchReport, fit_many
 
-__all__ = ["COLUMNS", "SCAN_SUFFIXES", "SUMMARY_NAME", "BatchReport", "find_truth", "fit_many", "list_scans",
+__all__ = ["COLUMNS", "SUMMARY_NAME", "BatchReport", "find_truth", "fit_many", "list_scans",
            "result_names"]

@@ -9,9 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from jsrte.errors import JsrteError
+from jsrte.formats import INPUT_SUFFIXES
 
-SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".pts", ".obj", ".off", ".stl", ".glb", ".gltf", ".npz")
-"""Everything ``jsrte fit`` accepts: scans (PLY/PCD/XYZ/PTS), complete meshes, SDF samples."""
 LIST_SUFFIX = ".txt"
 
 
@@ -35,9 +34,9 @@ def list_scans(source: str | Path) -> list[Path]:
     comments skipped; listed files need not exist: a missing one is a failed scan)."""
     source = Path(source)
     if source.is_dir():
-        scans = sorted(p for p in source.iterdir() if p.is_file() and p.suffix.lower() in SCAN_SUFFIXES)
+        scans = sorted(p for p in source.iterdir() if p.is_file() and p.suffix.lower() in INPUT_SUFFIXES)
         if not scans:
-            raise JsrteError(f"holds no scans ({', '.join(SCAN_SUFFIXES)})", source)
+            raise JsrteError(f"holds no scans ({', '.join(INPUT_SUFFIXES)})", source)
         return scans
     if not source.is_file():
         raise JsrteError("no such folder or list file", source)

@@ -25,13 +25,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from jsrte.atomic import write_bytes_atomic
 from jsrte.batch.inputs import find_truth, list_scans, result_names
-from jsrte.batch.worker import FitOptions, JobOutcome, ModelBlob, ScanJob, failed_outcome, summary_row
+from jsrte.batch.worker import JobOutcome, ModelBlob, ScanJob, failed_outcome, summary_row
 from jsrte.errors import JsrteError
 from jsrte.fit.outputs import RESULT_NAME
-from jsrte.io import write_bytes_atomic
+from jsrte.options import FitOptions
 
 SUMMARY_NAME = "summary.csv"
 COLUMNS = ("scan", "result", "status", "error", "fscore", "scale", "time_s", "model", "model_sha256", "preset")
@@ -61,28 +60,22 @@ class BatchReport:
     failed: int
 
 
-def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair", preset: str = "fast",
-             workers: int | None = None, ray_address: str | None = None, up: np.ndarray | None = None,
-             seed: int = 0, hypotheses: int | None = None, retries: int = 2,
+def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair", options: FitOptions | None = None,
+             workers: int | None = None, ray_address: str | None = None, retries: int = 2,
              progress: bool = True, overwrite: bool = False) -> BatchReport:
     """Fit every scan of ``source`` (a folder, or a ``.txt`` list) into ``out``.
 
     Parameters
     ----------
-    model, preset, up, seed, hypotheses : as ``jsrte.fit.fit``, the same for every scan
+    model, options : as ``jsrte.fit.fit``, the same for every scan
     workers : local worker processes (default: all cores); with ``ray_address="local"`` the
         CPUs of the Ray instance started here; ignored for another Ray cluster
     ray_address : None (local process pool) or a Ray address (see ``run_ray``)
     retries : times a scan is sent again after its worker process died
     overwrite : fit every scan again, replacing the results already in ``out`` (needed when they
-        were made with another model or preset)
+        were made with another model, preset or options)
     """
-    from jsrte.presets import get_preset
-
-    try:
-        get_preset(preset)
-    except KeyError as exc:
-        raise JsrteError(str(exc.args[0])) from None
+    options = options or FitOptions()
     if ray_address is not None:
         from jsrte.batch.ray_backend import import_ray
 
@@ -91,11 +84,10 @@ def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair"
     names = result_names(scans)
     out = Path(out)
     workers = workers or os.cpu_count() or 1
-    options = FitOptions(preset=preset, up=None if up is None else tuple(float(x) for x in up), seed=seed,
-                         hypotheses=hypotheses)
-    identity = model_identity(model, preset)  # a bad model stops the run before anything is written
+    identity = model_identity(model, options.preset)  # a bad model stops the run before anything is written
     if not overwrite:
         _check_same_identity(out, names, identity)
+        _check_same_options(out, names, options)
     blob = None
     if overwrite or any(not (out / name / RESULT_NAME).is_file() for name in names):
         blob = load_blob(model)
@@ -139,7 +131,7 @@ def fit_many(source: str | Path, *, out: str | Path, model: str | Path = "chair"
 
 def load_blob(model: str | Path) -> ModelBlob:
     """Read the model once; compute its class geometry here rather than in every worker."""
-    from jsrte.fit.api import class_geometry
+    from jsrte.fit.solve import class_geometry
     from jsrte.model.checkpoint import file_hash
     from jsrte.model.registry import resolve_model, resolve_model_path
 
@@ -178,6 +170,22 @@ def _check_same_identity(out: Path, names: list[str], identity: dict[str, str]) 
                          f"{preset!r}; this run uses model {identity['model']!r} "
                          f"({identity['model_sha256'][:12]}), preset {identity['preset']!r}: pass --overwrite to "
                          "fit every scan again, or give another --out", out)
+
+
+def _check_same_options(out: Path, names: list[str], options: FitOptions) -> None:
+    """JsrteError if ``out`` holds results of these scans made with other fit options (the device aside)."""
+    wanted = {k: v for k, v in options.record().items() if k != "device"}
+    for name in names:
+        try:
+            made = json.loads((out / name / RESULT_NAME).read_text()).get("options")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if not isinstance(made, dict):
+            continue  # recorded before options were: the model and preset checks stand
+        differ = [f"{k} {made.get(k)!r} there, {v!r} now" for k, v in wanted.items() if made.get(k) != v]
+        if differ:
+            raise JsrteError(f"{name} was fitted with other options ({'; '.join(differ)[:200]}): pass --overwrite "
+                             "to fit every scan again, or give another --out", out)
 
 
 def make_job(index: int, name: str, scan: Path, options: FitOptions) -> ScanJob:

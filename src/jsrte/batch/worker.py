@@ -17,7 +17,10 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from jsrte.options import FitOptions
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 _MODEL_CACHE: dict[str, Any] = {}
@@ -41,16 +44,6 @@ class ModelBlob:
     sha256: str
     data: bytes
     geometry: dict[str, float]
-
-
-@dataclass(frozen=True)
-class FitOptions:
-    """``jsrte fit``'s options, shared by every scan of a run."""
-
-    preset: str
-    up: tuple[float, float, float] | None = None
-    seed: int = 0
-    hypotheses: int | None = None
 
 
 @dataclass(frozen=True)
@@ -175,7 +168,6 @@ def fit_job(job: ScanJob, blob: ModelBlob) -> JobOutcome:
 
 
 def _fit(job: ScanJob, model: Any, tmp: Path, started: float) -> JobOutcome:
-    import numpy as np
 
     from jsrte.fit import fit
     from jsrte.fit.outputs import write_fit_outputs
@@ -185,9 +177,7 @@ def _fit(job: ScanJob, model: Any, tmp: Path, started: float) -> JobOutcome:
     for file_name, data in job.files.items():
         (inputs / Path(file_name).name).write_bytes(data)
     scan = inputs / Path(next(iter(job.files))).name
-    o = job.options
-    result = fit(scan, model=model, preset=o.preset, up=None if o.up is None else np.asarray(o.up),
-                 hypotheses=o.hypotheses, seed=o.seed)
+    result = fit(scan, model=model, options=job.options)
     scores, note = _score(job, result, tmp)
     seconds = time.perf_counter() - started
     out = tmp / "out"

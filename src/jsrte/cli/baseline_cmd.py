@@ -9,7 +9,7 @@ import typer
 from jsrte.baselines import BASELINE_NAMES
 from jsrte.cli import app
 from jsrte.cli.common import check_out_folder, check_threads, set_threads
-from jsrte.cli.fit_cmd import parse_vector
+from jsrte.cli.fit_options import parse_vector
 from jsrte.errors import JsrteError
 
 NAME_HELP = (
@@ -34,10 +34,10 @@ def baseline_command(
     """Retrieve a training shape of the model and its similarity transform with a baseline."""
     import numpy as np
 
-    from jsrte.baselines.api import load_baseline_query, run_baseline
+    from jsrte.atomic import output_dir
     from jsrte.baselines.database import ShapeDatabase
+    from jsrte.baselines.run import load_baseline_query, run_baseline
     from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs
-    from jsrte.io import output_dir
     from jsrte.model.registry import resolve_model
 
     if name not in BASELINE_NAMES:

@@ -9,9 +9,8 @@ import typer
 from jsrte.cli import app
 from jsrte.cli.common import check_out_file, check_threads, set_threads
 from jsrte.errors import JsrteError
+from jsrte.formats import MESH_OUTPUT_SUFFIXES
 from jsrte.presets import DEFAULT_PRESET, PRESETS
-
-MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb")
 
 
 def _refuse_existing(out: Path, overwrite: bool) -> None:
@@ -33,10 +32,10 @@ def encode_command(
     overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
 ) -> None:
     """Store a shape as its latent code and similarity transform (the paper's compression)."""
-    from jsrte.cli.fit_cmd import check_preset, parse_vector
+    from jsrte.atomic import write_bytes_atomic
+    from jsrte.cli.fit_options import check_preset, parse_vector
+    from jsrte.codec.convert import code_from_fit_dir, code_from_result
     from jsrte.codec.format import ENCODINGS, encode
-    from jsrte.codec.shapes import code_from_fit_dir, code_from_result
-    from jsrte.io import write_bytes_atomic
 
     if latent not in ENCODINGS:
         raise JsrteError(f"unknown --latent {latent!r}; known: {', '.join(ENCODINGS)}")
@@ -64,7 +63,7 @@ def encode_command(
 @app.command("decode")
 def decode_command(
     code_file: Path = typer.Argument(..., help="Shape code (.jsrte) written by 'jsrte encode'."),
-    out: Path = typer.Option(..., "--out", help=f"Mesh to write ({', '.join(MESH_SUFFIXES)})."),
+    out: Path = typer.Option(..., "--out", help=f"Mesh to write ({', '.join(MESH_OUTPUT_SUFFIXES)})."),
     model: str = typer.Option(None, help="Model file (default: the shipped model named in the code)."),
     resolution: int = typer.Option(128, help="Marching-cubes grid resolution."),
     canonical: bool = typer.Option(False, help="Write the mesh in the canonical frame (no transform)."),
@@ -72,11 +71,11 @@ def decode_command(
     overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
 ) -> None:
     """Turn a shape code back into a mesh, in the scan's frame (or canonical with --canonical)."""
-    from jsrte.codec.shapes import mesh_from_code, model_for_code, read_code
+    from jsrte.codec.convert import mesh_from_code, model_for_code, read_code
     from jsrte.geometry.mesh import save_mesh
 
-    if out.suffix.lower() not in MESH_SUFFIXES:
-        known = ", ".join(MESH_SUFFIXES)
+    if out.suffix.lower() not in MESH_OUTPUT_SUFFIXES:
+        known = ", ".join(MESH_OUTPUT_SUFFIXES)
         raise JsrteError(f"unsupported mesh format {out.suffix!r}; use one of {known}", out)
     if not 8 <= resolution <= 1024:
         raise JsrteError(f"--resolution must be in 8..1024, got {resolution}")

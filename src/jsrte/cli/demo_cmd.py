@@ -9,7 +9,7 @@ import typer
 
 from jsrte.cli import app
 from jsrte.cli.common import check_out_folder, check_threads, set_threads
-from jsrte.cli.fit_cmd import check_preset
+from jsrte.cli.fit_options import check_preset
 
 
 @app.command("demo")
@@ -24,11 +24,11 @@ def demo(
     """Scan a held-out generated chair in a random pose, fit it, and score the result."""
     import numpy as np
 
+    from jsrte.atomic import output_dir
     from jsrte.experiments.truth import score_against_truth, truth_of
     from jsrte.fit import fit
     from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs
     from jsrte.geometry.mesh import save_mesh
-    from jsrte.io import output_dir
     from jsrte.scans.scanner import scan_mesh, write_scan
     from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 

@@ -8,9 +8,10 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
-from jsrte.cli.common import resolve_device, set_threads
+from jsrte.cli.common import check_threads, resolve_device, set_threads
 from jsrte.errors import JsrteError
-from jsrte.presets import PRESETS, SCENARIOS, SYNTHETIC_SCALES, CompressionSettings
+from jsrte.experiments.settings import SCENARIOS, SYNTHETIC_SCALES, CompressionSettings
+from jsrte.presets import PRESETS
 
 experiment_app = typer.Typer(name="experiment", help="Run the paper's experiments and write their tables and "
                              "figures.", no_args_is_help=True)
@@ -81,8 +82,8 @@ def synthetic_command(
     random transforms from random initializations around the truth."""
     from dataclasses import replace
 
+    from jsrte.atomic import output_dir
     from jsrte.experiments.synthetic import RUNS_NAME, SUMMARY_MD, SyntheticConfig, run_synthetic
-    from jsrte.io import output_dir
     from jsrte.shapes import CATEGORIES
 
     if scale not in SYNTHETIC_SCALES:
@@ -111,6 +112,7 @@ def synthetic_command(
         if (out / RUNS_NAME).exists() and not overwrite:
             raise JsrteError(f"holds an unfinished run ({RUNS_NAME}); pass --resume to continue it or "
                              "--overwrite to replace it", out)
+    check_threads(threads)
     torch_device = resolve_device(device)
     models = {c: m if m is None else m.to(torch_device) for c, m in load_models(cats, model).items()}
     if all(m is None for m in models.values()):
@@ -151,8 +153,8 @@ def compression_command(
     VC-0.1, VC-0.2), file size and F@5% against the original."""
     from dataclasses import replace
 
+    from jsrte.atomic import output_dir
     from jsrte.experiments.compression import SOURCES, TABLE_MD, CompressionConfig, run_compression
-    from jsrte.io import output_dir
     from jsrte.shapes import check_category
 
     check_category(category)
@@ -170,6 +172,7 @@ def compression_command(
     if samples:
         chosen = replace(chosen, sampling=replace(chosen.sampling, n_points=samples))
     _check_out(out, TABLE_MD, overwrite)
+    check_threads(threads)
     loaded = load_models((category,), model)[category]
     if loaded is None:
         raise JsrteError(f"no shipped model for {category!r}; pass --model PATH")

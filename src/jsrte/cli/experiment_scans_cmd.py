@@ -33,9 +33,9 @@ def scans_command(
     first: int = typer.Option(0, help="First evaluation-set index of the virtual scans (0: Table 2's)."),
 ) -> None:
     """Every method on every scan; F@5% against the true shape and the scan, times, figures."""
+    from jsrte.atomic import output_dir
     from jsrte.baselines import BASELINE_NAMES
     from jsrte.experiments.scans import SCALES, folder_cases, run_scan_experiment, virtual_cases
-    from jsrte.io import output_dir
     from jsrte.model.registry import resolve_model
 
     chosen = split_names(methods, ("jsrte",) + BASELINE_NAMES, "method")

@@ -7,10 +7,9 @@ from pathlib import Path
 import typer
 
 from jsrte.cli import app
+from jsrte.cli import fit_options as opt
 from jsrte.cli.common import check_out_folder, check_threads
-from jsrte.cli.fit_cmd import check_hypotheses, check_preset, parse_vector
 from jsrte.errors import JsrteError
-from jsrte.presets import DEFAULT_PRESET, PRESETS
 
 
 @app.command("fit-many")
@@ -19,14 +18,16 @@ def fit_many_command(
                                             ".txt list of scan paths, one a line."),
     out: Path = typer.Option(..., "--out", help="Output folder: one result folder per scan, summary.csv."),
     model: str = typer.Option("chair", help="Shipped model name or model file."),
-    preset: str = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)}."),
+    preset: str = opt.PRESET,
+    up: str = typer.Option(None, help="Known up axis X,Y,Z for every scan (default: each floor's normal)."),
+    viewpoint: list[str] = opt.VIEWPOINT, line_of_sight: bool = opt.LINE_OF_SIGHT,
+    free_axis: bool = opt.FREE_AXIS, at: str = opt.AT, hypotheses: int = opt.HYPOTHESES,
+    seed: int = typer.Option(0, help="Random seed (the same for every scan, as jsrte fit)."),
+    device: str = opt.DEVICE, units_check: bool = opt.UNITS_CHECK,
     workers: int = typer.Option(0, help="Parallel fits on this machine (0: all cores); with --ray local, "
                                         "the CPUs of that Ray instance."),
     ray: str = typer.Option(None, "--ray", help="Run on the Ray cluster at this address (auto, HOST:6379, "
                                                 "ray://HOST:10001) or 'local' (start one here)."),
-    up: str = typer.Option(None, help="Known up axis X,Y,Z for every scan (default: each floor's normal)."),
-    seed: int = typer.Option(0, help="Random seed (the same for every scan, as jsrte fit)."),
-    hypotheses: int = typer.Option(None, help="Number of θ starts (default: the preset's grid)."),
     retries: int = typer.Option(2, help="Times a scan is sent again after its worker process died."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
     html_report: bool = typer.Option(True, "--report/--no-report",
@@ -40,15 +41,15 @@ def fit_many_command(
     """
     from jsrte.batch import fit_many
 
-    check_preset(preset)
+    options = opt.fit_options(preset=preset, up=up, viewpoint=viewpoint, line_of_sight=line_of_sight,
+                              free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, device=device,
+                              units_check=units_check)
     check_threads(workers, "--workers")
-    check_hypotheses(hypotheses)
     if retries < 0:
         raise JsrteError(f"--retries must be 0 or more, got {retries}")
     check_out_folder(out)
-    report = fit_many(source, out=out, model=model, preset=preset, workers=workers or None,
-                      ray_address=ray, up=parse_vector(up), seed=seed, hypotheses=hypotheses, retries=retries,
-                      progress=progress, overwrite=overwrite)
+    report = fit_many(source, out=out, model=model, options=options, workers=workers or None, ray_address=ray,
+                      retries=retries, progress=progress, overwrite=overwrite)
     typer.echo(f"{len(report.rows)} scans: {report.fitted} fitted now, {report.skipped} done before, "
                f"{report.failed} failed; wrote {report.summary}")
     if html_report:

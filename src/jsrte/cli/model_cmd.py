@@ -25,10 +25,10 @@ def reconstruct(
     """DeepSDF latent-only reconstruction; the mesh is written in the input's own frame."""
     import numpy as np
 
+    from jsrte.atomic import output_dir, write_json_atomic
+    from jsrte.fit.reconstruct import reconstruct_mesh
     from jsrte.geometry.mesh import load_mesh, save_mesh
-    from jsrte.io import output_dir, write_json_atomic
     from jsrte.metrics.surface import fscore
-    from jsrte.model.reconstruct import reconstruct_mesh
     from jsrte.model.registry import resolve_model
 
     if not 8 <= resolution <= 1024:
@@ -65,8 +65,8 @@ def evaluate_model_command(
     """Model-card figures: F@5% / Chamfer of training and held-out procedural shapes."""
     import json
 
-    from jsrte.io import write_json_atomic
-    from jsrte.model.reconstruct import evaluate_model
+    from jsrte.atomic import write_json_atomic
+    from jsrte.fit.reconstruct import evaluate_model
     from jsrte.model.registry import resolve_model
     from jsrte.shapes import EVAL_SET_SEED, generate_set
 

@@ -44,14 +44,14 @@ def dataset(
     workers: int = typer.Option(0, help="Worker processes (0: all cores)."),
 ) -> None:
     """Sample every mesh of a folder in parallel; meshes already sampled are skipped."""
-    from jsrte.geometry.mesh import MESH_SUFFIXES
+    from jsrte.formats import MESH_FILE_SUFFIXES
     from jsrte.sdf.dataset import build_sdf_dataset
 
     if not folder.is_dir():
         raise JsrteError("no such folder", folder)
     check_threads(workers, "--workers")
     check_out_folder(out)
-    meshes = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MESH_SUFFIXES)
+    meshes = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MESH_FILE_SUFFIXES)
     if not meshes:
         raise JsrteError("holds no mesh files", folder)
     paths = build_sdf_dataset(meshes, out, settings=SdfSampling(n_points=n), seed=seed,

@@ -36,8 +36,8 @@ def scene(
 
     import numpy as np
 
+    from jsrte.atomic import output_dir
     from jsrte.geometry.mesh import load_mesh
-    from jsrte.io import output_dir
     from jsrte.scans.scene import SceneSettings, scan_room, write_room
     from jsrte.shapes import CATEGORIES, EVAL_SET_SEED, check_category, generate_shape, shape_seed
 

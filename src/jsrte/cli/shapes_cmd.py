@@ -26,8 +26,8 @@ def shapes(
     """Generate shapes 0..n-1 of a procedural set, reproducibly from the set seed."""
     from tqdm import tqdm
 
-    from jsrte.geometry.mesh import MESH_SUFFIXES
-    from jsrte.io import output_dir
+    from jsrte.atomic import output_dir
+    from jsrte.formats import MESH_FILE_SUFFIXES
     from jsrte.shapes import check_category, generate_shape, shape_seed, write_shape
     from jsrte.shapes.sheet import MAX_SHEET_SHAPES, render_sheet
 
@@ -37,7 +37,7 @@ def shapes(
     if seed < 0:
         raise JsrteError(f"--seed must be non-negative, got {seed}")
     check_out_folder(out)
-    existing = [p for p in out.iterdir() if p.suffix.lower() in MESH_SUFFIXES] if out.is_dir() else []
+    existing = [p for p in out.iterdir() if p.suffix.lower() in MESH_FILE_SUFFIXES] if out.is_dir() else []
     if existing and not overwrite:
         raise JsrteError(f"already holds {len(existing)} mesh file(s); pass --overwrite to replace them",
                          out)

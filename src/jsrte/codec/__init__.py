@@ -4,8 +4,8 @@ small, versioned, checksummed binary file (``.jsrte``), tied to the model that d
 The byte layout is documented in :mod:`jsrte.codec.format` and docs/codec.md.
 """
 
+from jsrte.codec.convert import code_from_fit_dir, code_from_result, mesh_from_code, model_for_code, read_code
 from jsrte.codec.format import ShapeCode, decode, encode, encoded_size
-from jsrte.codec.shapes import code_from_fit_dir, code_from_result, mesh_from_code, model_for_code, read_code
 
 __all__ = ["ShapeCode", "code_from_fit_dir", "code_from_result", "decode", "encode", "encoded_size",
            "mesh_from_code", "model_for_code", "read_code"]

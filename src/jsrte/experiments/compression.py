@@ -39,19 +39,20 @@ import numpy as np
 import torch
 import trimesh
 
+from jsrte.atomic import write_bytes_atomic, write_with
 from jsrte.codec import ShapeCode, code_from_result, decode, encode
 from jsrte.errors import JsrteError
+from jsrte.experiments.settings import PAPER_TABLE3, CompressionSettings, SyntheticTruth
 from jsrte.extract.marching import extract_coarse_to_fine
-from jsrte.fit.api import fit_query
-from jsrte.fit.optimize import SdfQuery
-from jsrte.fit.result import FitResult
+from jsrte.fit.query import SdfQuery
+from jsrte.fit.solve import fit_query
 from jsrte.geometry.mesh import Normalization, unit_sphere_normalization
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg
-from jsrte.io import write_bytes_atomic, write_with
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel, file_hash
-from jsrte.model.decode import decode_mesh
-from jsrte.presets import PAPER_TABLE3, CompressionSettings, Preset, SyntheticTruth
+from jsrte.model.meshing import decode_mesh
+from jsrte.presets import Preset
+from jsrte.result import FitResult
 from jsrte.sdf.mesh_sdf import signed_distance
 from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jsrte.io import write_with
+from jsrte.atomic import write_with
 
 FSCORE_BIN_WIDTH = 0.1
 """Width of the F-score bins of the box plots."""

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from jsrte.atomic import write_bytes_atomic, write_with
 from jsrte.errors import JsrteError
-from jsrte.fit.result import FitResult
-from jsrte.io import write_bytes_atomic, write_with
 from jsrte.metrics.surface import fscore
+from jsrte.result import FitResult
 
 PAPER_TABLE2 = {"harris3d-shot": 0.273, "ourcvfh-icp": 0.367, "pointnet-icp": 0.452, "jsrte": 0.902}
 """The paper's mean F@5% on 58 Redwood chair scans (Table 2); FPFH+RANSAC+ICP is ours only."""
@@ -92,10 +92,12 @@ def _cluttered_cases(category: str, n: int, folder: Path, *, seed: int, first: i
 
 
 def folder_cases(folder: Path) -> list[ScanCase]:
-    """Real scans: every PLY/PCD/XYZ in ``folder`` (no truth)."""
-    paths = sorted(p for p in Path(folder).iterdir() if p.suffix.lower() in (".ply", ".pcd", ".xyz", ".pts"))
+    """Real scans: every scan file in ``folder`` (no truth; formats: ``jsrte.formats.SCAN_SUFFIXES``)."""
+    from jsrte.formats import SCAN_SUFFIXES
+
+    paths = sorted(p for p in Path(folder).iterdir() if p.suffix.lower() in SCAN_SUFFIXES)
     if not paths:
-        raise JsrteError("holds no scans (.ply/.pcd/.xyz/.pts)", folder)
+        raise JsrteError(f"holds no scans ({', '.join(SCAN_SUFFIXES)})", folder)
     return [ScanCase(p.stem, p) for p in paths]
 
 

@@ -24,25 +24,19 @@ import numpy as np
 import torch
 import trimesh
 
+from jsrte.atomic import write_bytes_atomic, write_with
 from jsrte.errors import JsrteError
-from jsrte.fit.api import latent_prior
-from jsrte.fit.optimize import SdfQuery, optimize
+from jsrte.experiments.settings import SCENARIOS, SYNTHETIC_FSCORE_GOOD, SyntheticScenario, SyntheticTruth
+from jsrte.fit.optimize import optimize
 from jsrte.fit.params import Init
-from jsrte.fit.query import query_from_mesh
+from jsrte.fit.query import SdfQuery, query_from_mesh
+from jsrte.fit.solve import latent_prior
 from jsrte.geometry.mesh import normalized
 from jsrte.geometry.sim3 import Sim3, rotation_angle_deg, rotation_from_paper
-from jsrte.io import write_bytes_atomic, write_with
 from jsrte.metrics.surface import fscore
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
-from jsrte.presets import (
-    SCENARIOS,
-    SYNTHETIC_FSCORE_GOOD,
-    FitSettings,
-    SdfSampling,
-    SyntheticScenario,
-    SyntheticTruth,
-)
+from jsrte.model.meshing import decode_mesh
+from jsrte.presets import FitSettings, SdfSampling
 from jsrte.shapes import CATEGORIES, EVAL_SET_SEED, generate_shape, shape_seed
 
 Log = Callable[[str], None]

@@ -7,11 +7,11 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from jsrte.fit.result import FitResult
 from jsrte.geometry.mesh import unit_sphere_normalization
 from jsrte.geometry.sim3 import Sim3, rotation_angle_deg
 from jsrte.metrics.surface import fscore
 from jsrte.presets import FitSettings
+from jsrte.result import FitResult
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from jsrte.fit.optimize import SdfQuery
+from jsrte.fit.query import SdfQuery
 from jsrte.presets import FitSettings
 
 

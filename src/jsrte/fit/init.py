@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from jsrte.errors import JsrteError
-from jsrte.fit.optimize import SdfQuery
 from jsrte.fit.params import Init
+from jsrte.fit.query import SdfQuery
 from jsrte.geometry.sim3 import rotation_between, spherical_from_axis
 from jsrte.metrics.surface import bounding_sphere
 from jsrte.presets import FitSettings

@@ -13,36 +13,9 @@ from tqdm import tqdm
 
 from jsrte.fit.adam import Adam
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
+from jsrte.fit.query import SdfQuery
 from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.presets import FitSettings
-
-
-@dataclass
-class SdfQuery:
-    """SDF samples of a query in scan units.
-
-    Attributes
-    ----------
-    points : (m, 3) float64, scan units (metres for scans)
-    sdf : (m,) float64, scan units, negative inside
-    surface : (k, 3) float64, points on the query surface (scan units): for F-scores and figures
-    up : (3,) unit vector or None: the known rotation axis (floor normal)
-    floor_offset : float or None: the floor plane is {x : up·x = floor_offset}
-    n_refine_only : the last this many samples (line-of-sight free space) are drawn only once
-        the hypotheses are pruned (the yaw decided on the paper's evidence), unless
-        ``FitSettings.line_of_sight_before_pruning``
-    lower_bound : (m,) bool or None: samples whose ``sdf`` is only a lower bound on the true SDF
-        (under the floor: fit.floor); the loss counts their predictions only where they fall short
-    """
-
-    points: np.ndarray
-    sdf: np.ndarray
-    surface: np.ndarray
-    up: np.ndarray | None = None
-    floor_offset: float | None = None
-    info: dict = field(default_factory=dict)
-    n_refine_only: int = 0
-    lower_bound: np.ndarray | None = None
 
 
 @dataclass

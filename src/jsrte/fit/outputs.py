@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jsrte.fit.result import FitResult
+from jsrte.atomic import write_json_atomic
 from jsrte.geometry.mesh import save_mesh
-from jsrte.io import write_json_atomic
+from jsrte.result import FitResult
 from jsrte.timing import timed_stage
 
 RESULT_NAME = "fit.json"

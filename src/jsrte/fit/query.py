@@ -1,24 +1,52 @@
-"""Build the SDF query of the fit from what the user has: samples, a mesh, or a scan."""
+"""The fit's query (:class:`SdfQuery`) and how it is built from what the user has: samples, a
+mesh, a scan, or a query file (the file's kind: :func:`jsrte.formats.input_kind`)."""
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from jsrte.errors import JsrteError
-from jsrte.fit.optimize import SdfQuery
+from jsrte.formats import input_kind
 from jsrte.geometry.mesh import load_mesh
 from jsrte.presets import ScanSdf, SdfSampling
 from jsrte.scans.segment import ClassShape
 from jsrte.sdf.mesh_sdf import SdfSamples, sample_sdf
 from jsrte.timing import stage
 
-SCAN_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".pts")
-MESH_QUERY_SUFFIXES = (".obj", ".off", ".stl", ".glb", ".gltf")
 SURFACE_POINTS = 20_000
+
+
+@dataclass
+class SdfQuery:
+    """SDF samples of a query in scan units.
+
+    Attributes
+    ----------
+    points : (m, 3) float64, scan units (metres for scans)
+    sdf : (m,) float64, scan units, negative inside
+    surface : (k, 3) float64, points on the query surface (scan units): for F-scores and figures
+    up : (3,) unit vector or None: the known rotation axis (floor normal)
+    floor_offset : float or None: the floor plane is {x : up·x = floor_offset}
+    n_refine_only : the last this many samples (line-of-sight free space) are drawn only once
+        the hypotheses are pruned (the yaw decided on the paper's evidence), unless
+        ``FitSettings.line_of_sight_before_pruning``
+    lower_bound : (m,) bool or None: samples whose ``sdf`` is only a lower bound on the true SDF
+        (under the floor: fit.floor); the loss counts their predictions only where they fall short
+    """
+
+    points: np.ndarray
+    sdf: np.ndarray
+    surface: np.ndarray
+    up: np.ndarray | None = None
+    floor_offset: float | None = None
+    info: dict = field(default_factory=dict)
+    n_refine_only: int = 0
+    lower_bound: np.ndarray | None = None
 
 
 def query_from_samples(samples: SdfSamples, *, up: np.ndarray | None = None) -> SdfQuery:
@@ -50,7 +78,7 @@ def class_shape(model: object) -> ClassShape | None:
     meta = model.meta
     name = str(meta.get("category") or model.name)
     if "class_aspect" not in meta or "class_profile" not in meta:
-        from jsrte.model.decode import decode_mesh
+        from jsrte.model.meshing import decode_mesh
 
         mesh = decode_mesh(model.decoder, model.mean_code(), resolution=64).mesh
         if mesh is None:
@@ -113,7 +141,7 @@ QUERY_FORMAT = "jsrte-query"
 
 def save_query(query: SdfQuery, path: str | Path) -> None:
     """Write ``query`` as an ``.npz`` query file, atomically (read back by :func:`read_query_file`)."""
-    from jsrte.io import write_with
+    from jsrte.atomic import write_with
 
     arrays = {"format": np.array(QUERY_FORMAT), "points": query.points, "sdf": query.sdf, "surface": query.surface,
               "up": np.full(3, np.nan) if query.up is None else np.asarray(query.up, float),
@@ -169,24 +197,17 @@ def load_query(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | N
     or +y); PLY/PCD/XYZ/PTS scans (point clouds or scan meshes, floor plane gives up; the object
     is the one nearest ``at`` (3,) or most like ``shape``: :func:`query_from_scan`)."""
     path = Path(path)
-    if not path.exists():
-        raise JsrteError("no such file", path)
-    if path.is_dir():
-        raise JsrteError("is a folder; give a scan, mesh or .npz file (fit-many fits a folder)", path)
-    suffix = path.suffix.lower()
-    if at is not None and suffix not in SCAN_SUFFIXES:
+    kind = input_kind(path)
+    if at is not None and kind != "scan":
         raise JsrteError("--at picks an object in a scan; this input is not a scan (PLY/PCD/XYZ/PTS)", path)
-    if suffix == ".npz" and is_query_file(path):
+    if kind == "npz" and is_query_file(path):
         query = read_query_file(path)
         if up is not None:
             query.up = np.asarray(up, float) / np.linalg.norm(up)
         return query
-    if suffix == ".npz":
+    if kind == "npz":
         return query_from_samples(SdfSamples.load(path), up=up)
-    if suffix in MESH_QUERY_SUFFIXES:
+    if kind == "mesh":
         return query_from_mesh(load_mesh(path), rng=rng, up=up)
-    if suffix in SCAN_SUFFIXES:
-        return query_from_scan(path, rng=rng, up=up, viewpoints=viewpoints, settings=scan_settings,
-                               units_check=units_check, shape=shape, at=at)
-    known = ", ".join((".npz",) + MESH_QUERY_SUFFIXES + SCAN_SUFFIXES)
-    raise JsrteError(f"unsupported input {path.suffix!r} (use {known})", path)
+    return query_from_scan(path, rng=rng, up=up, viewpoints=viewpoints, settings=scan_settings,
+                           units_check=units_check, shape=shape, at=at)

@@ -8,11 +8,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from jsrte.atomic import write_with
 from jsrte.errors import JsrteError
-from jsrte.io import write_with
+from jsrte.formats import MESH_FILE_SUFFIXES, check_ply_complete
 from jsrte.presets import SdfSampling
-
-MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 
 
 def load_mesh(path: str | Path) -> trimesh.Trimesh:
@@ -28,11 +27,9 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
         raise JsrteError("no such file", path)
     if path.stat().st_size == 0:
         raise JsrteError("file is empty", path)
-    if path.suffix.lower() not in MESH_SUFFIXES:
-        raise JsrteError(f"unsupported mesh format {path.suffix!r} (use {', '.join(MESH_SUFFIXES)})", path)
+    if path.suffix.lower() not in MESH_FILE_SUFFIXES:
+        raise JsrteError(f"unsupported mesh format {path.suffix!r} (use {', '.join(MESH_FILE_SUFFIXES)})", path)
     if path.suffix.lower() == ".ply":
-        from jsrte.scans.io import check_ply_complete
-
         check_ply_complete(path)
     try:
         loaded = trimesh.load(path, force="mesh", process=False)

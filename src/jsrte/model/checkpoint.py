@@ -18,8 +18,8 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 import jsrte
+from jsrte.atomic import write_json_atomic, write_with
 from jsrte.errors import JsrteError
-from jsrte.io import write_json_atomic, write_with
 from jsrte.model.decoder import Decoder, DecoderConfig
 
 FORMAT = "jsrte-model"

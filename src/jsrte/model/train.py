@@ -22,8 +22,8 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from tqdm import tqdm
 
+from jsrte.atomic import atomic_path
 from jsrte.errors import JsrteError
-from jsrte.io import atomic_path
 from jsrte.model.checkpoint import DeepSdfModel, non_finite_tensors, read_metadata, save_model, tensors_of
 from jsrte.model.config import LOG_NAME, MODEL_NAME, PREVIOUS_STATE_NAME, STATE_NAME, TrainSettings
 from jsrte.model.decoder import Decoder, DecoderConfig

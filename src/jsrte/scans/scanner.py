@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from jsrte.atomic import atomic_path
 from jsrte.errors import JsrteError
 from jsrte.geometry.mesh import validate_mesh
 from jsrte.geometry.sim3 import Sim3
-from jsrte.io import atomic_path
 
 UP_LEVEL = np.array([0.0, 1.0, 0.0])
 

@@ -191,8 +191,8 @@ def write_room(room: VirtualRoom, out_dir: str | Path, *, seed: int | None = Non
     ``labels.npy`` ((n,) int16 per point, as ``VirtualRoom.labels``), ``meshes/NN_kind.ply``
     (every object in its own coordinates) and ``scene.json`` (every object's class, mesh file
     and ``scan_from_mesh``; the walls; the cameras). Returns the path of ``scan.ply``."""
+    from jsrte.atomic import write_json_atomic, write_with
     from jsrte.geometry.mesh import save_mesh
-    from jsrte.io import write_json_atomic, write_with
     from jsrte.scans.scanner import write_scan
 
     out_dir = Path(out_dir)

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from jsrte.atomic import write_json_atomic
 from jsrte.errors import JsrteError
 from jsrte.geometry.mesh import load_mesh
-from jsrte.io import write_json_atomic
 from jsrte.presets import SdfSampling
 from jsrte.processes import die_with_parent
 from jsrte.sdf.mesh_sdf import sample_cache_key, sample_sdf

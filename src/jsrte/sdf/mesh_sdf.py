@@ -14,9 +14,9 @@ import numpy as np
 import point_cloud_utils as pcu
 import trimesh
 
+from jsrte.atomic import write_with
 from jsrte.errors import JsrteError
 from jsrte.geometry.mesh import Normalization, unit_sphere_normalization, validate_mesh
-from jsrte.io import write_with
 from jsrte.presets import SdfSampling
 
 

@@ -110,8 +110,8 @@ def shape_stem(category: str, index: int) -> str:
 
 def write_shape(shape: GeneratedShape, out_dir: str | Path, index: int) -> Path:
     """Write ``shape`` as ``{category}_{index:04d}.ply`` + ``.json`` (atomically); returns the PLY."""
+    from jsrte.atomic import write_json_atomic
     from jsrte.geometry.mesh import save_mesh
-    from jsrte.io import write_json_atomic
 
     out_dir = Path(out_dir)
     stem = shape_stem(shape.category, index)

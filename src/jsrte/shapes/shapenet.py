@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from jsrte.errors import JsrteError
-from jsrte.geometry.mesh import MESH_SUFFIXES
+from jsrte.formats import MESH_FILE_SUFFIXES
 
 SHAPENET_SYNSETS = {"chair": "03001627", "table": "04379243", "sofa": "04256520", "bed": "02818832"}
 """ShapeNetCore v2 synset id of each category."""
@@ -50,7 +50,7 @@ def iter_shapenet(root: str | Path, category: str) -> Iterator[tuple[str, Path]]
 
 
 def iter_mesh_folder(folder: str | Path) -> Iterator[Path]:
-    """Yield the mesh files (suffixes ``MESH_SUFFIXES``) directly in ``folder``, sorted by name.
+    """Yield the mesh files (suffixes ``MESH_FILE_SUFFIXES``) directly in ``folder``, sorted by name.
 
     Raises ``JsrteError`` for a missing folder or one holding no mesh files, when iteration
     starts.
@@ -58,7 +58,7 @@ def iter_mesh_folder(folder: str | Path) -> Iterator[Path]:
     folder = Path(folder)
     if not folder.is_dir():
         raise JsrteError("no such folder", folder)
-    found = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
+    found = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in MESH_FILE_SUFFIXES)
     if not found:
-        raise JsrteError(f"holds no mesh files ({', '.join(MESH_SUFFIXES)})", folder)
+        raise JsrteError(f"holds no mesh files ({', '.join(MESH_FILE_SUFFIXES)})", folder)
     yield from found

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from jsrte.io import write_with
+from jsrte.atomic import write_with
 
 MAX_SHEET_SHAPES = 16
 """At most this many shapes on one sheet (a 4 x 4 grid)."""

@@ -274,10 +274,12 @@ def _scan_path(recorded: Any, folder: Path) -> Path | None:
 def _scan_points(path: Path, problems: list[str], max_points: int) -> np.ndarray | None:
     """(n, 3) points of a scan (a point cloud, a mesh's vertices, or SDF samples near the surface)."""
     try:
-        suffix = path.suffix.lower()
-        if suffix == ".npz":
+        from jsrte.formats import input_kind
+
+        kind = input_kind(path)
+        if kind == "npz":
             points = _npz_surface(path)
-        elif suffix in (".ply", ".glb", ".gltf"):
+        elif kind == "mesh" or path.suffix.lower() == ".ply":
             points = _trimesh_points(path)
         else:
             from jsrte.scans.io import load_scan
@@ -421,7 +423,7 @@ def truth_fscore(mesh: Any, truth: Any) -> float:
 
 def _load_code(entry: FitEntry) -> FitItem:
     """A ``.jsrte`` code decoded with its shipped model: the mesh and the pose (no scan)."""
-    from jsrte.codec.shapes import mesh_from_code, model_for_code, read_code
+    from jsrte.codec.convert import mesh_from_code, model_for_code, read_code
 
     assert entry.code is not None
     code = read_code(entry.code)  # a corrupt code is the whole input: a one-line error

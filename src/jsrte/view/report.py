@@ -59,7 +59,7 @@ def write_report(items: list[FitItem], out: str | Path, *, title: str, overwrite
     ``thumbnails`` maps an item's name to PNG bytes, for items without an overlay.png (the
     experiments' in-memory results). Refuses an existing ``out`` unless ``overwrite``.
     """
-    from jsrte.io import write_bytes_atomic
+    from jsrte.atomic import write_bytes_atomic
 
     out = Path(out)
     if out.is_dir():

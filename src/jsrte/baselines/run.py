@@ -10,8 +10,7 @@ import numpy as np
 
 from jsrte.baselines import get_baseline
 from jsrte.baselines.database import ShapeDatabase
-from jsrte.errors import JsrteError
-from jsrte.fit.result import FitResult
+from jsrte.result import FitResult
 
 MESH_SURFACE_POINTS = 20_000
 """Points sampled on a complete-mesh query (``jsrte fit`` uses as many surface points)."""
@@ -45,18 +44,12 @@ def load_baseline_query(path: str | Path, *, rng: np.random.Generator, up: np.nd
     is given). Complete meshes (OBJ/OFF/STL/GLB/GLTF): surface samples with face normals, up
     ``up`` or +y.
     """
-    from jsrte.fit.query import MESH_QUERY_SUFFIXES, SCAN_SUFFIXES
+    from jsrte.formats import input_kind
 
     path = Path(path)
-    if not path.exists():
-        raise JsrteError("no such file", path)
-    suffix = path.suffix.lower()
-    if suffix in MESH_QUERY_SUFFIXES:
+    if input_kind(path, accept=("scan", "mesh")) == "mesh":
         return _mesh_query(path, rng, up)
-    if suffix in SCAN_SUFFIXES:
-        return _scan_query(path, rng, up)
-    known = ", ".join(SCAN_SUFFIXES + MESH_QUERY_SUFFIXES)
-    raise JsrteError(f"the baselines take a scan or a mesh ({known}), not {path.suffix!r}", path)
+    return _scan_query(path, rng, up)
 
 
 def _scan_query(path: Path, rng: np.random.Generator, up: np.ndarray | None) -> BaselineQuery:

@@ -15,9 +15,9 @@ import trimesh
 
 from jsrte.codec.format import HASH_BYTES, ShapeCode, decode, model_hash_prefix
 from jsrte.errors import JsrteError
-from jsrte.fit.result import FitResult
 from jsrte.geometry.sim3 import Sim3
 from jsrte.model.checkpoint import DeepSdfModel, file_hash, read_metadata
+from jsrte.result import FitResult
 
 
 def read_code(path: str | Path) -> ShapeCode:
@@ -142,7 +142,7 @@ def mesh_from_code(code: ShapeCode, model: DeepSdfModel, *, resolution: int = 12
                    canonical: bool = False) -> trimesh.Trimesh | None:
     """Decode the surface (marching cubes at ``resolution``); in the scan's frame (the code's
     transform applied) unless ``canonical``. None when the level set is empty."""
-    from jsrte.model.decode import decode_mesh
+    from jsrte.model.meshing import decode_mesh
 
     mesh = decode_mesh(model.decoder, code.latent, resolution=resolution).mesh
     if mesh is None or canonical:

@@ -1,4 +1,4 @@
-"""``fit``: the JSRTE algorithm (paper Algorithm 1) on an SDF query."""
+"""The JSRTE algorithm (paper Algorithm 1) on an SDF query: starts, minimization, and the winner."""
 
 from __future__ import annotations
 
@@ -10,14 +10,15 @@ import torch
 from jsrte.errors import JsrteError
 from jsrte.fit.floor import with_below_floor_samples
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
-from jsrte.fit.optimize import Optimized, SdfQuery, loss_clamp, optimize
+from jsrte.fit.optimize import Optimized, loss_clamp, optimize
 from jsrte.fit.params import Init, LatentPrior
-from jsrte.fit.result import FitResult, HypothesisReport
+from jsrte.fit.query import SdfQuery
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
 from jsrte.model.decoder import Decoder
+from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FitSettings
+from jsrte.result import FitResult, HypothesisReport
 from jsrte.timing import stage, timed_stage
 
 AXIS_PARAMETERS = frozenset({"psi", "rho"})
@@ -60,8 +61,6 @@ def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
 
         return solve(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
                      progress=progress)
-    if settings.solver != "adam":
-        raise ValueError(f"unknown solver {settings.solver!r}; known: adam, gauss-newton")
     return optimize(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
                     progress=progress)
 

@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from jsrte.errors import JsrteError
-from jsrte.fit.result import FitResult
 from jsrte.geometry.sim3 import Sim3
+from jsrte.result import FitResult
 
 if TYPE_CHECKING:
     from jsrte.baselines.database import ShapeDatabase
@@ -30,7 +30,7 @@ class Baseline(Protocol):
 
     ``fit`` takes the query's points ``(n, 3)`` in scan units (metres) with outward unit normals
     ``(n, 3)`` and the known up axis ``(3,)`` (the floor normal), and returns a
-    :class:`~jsrte.fit.result.FitResult` whose ``transform`` is ``scan_from_canonical`` and whose
+    :class:`~jsrte.result.FitResult` whose ``transform`` is ``scan_from_canonical`` and whose
     ``mesh_canonical`` is the retrieved database shape in its normalized canonical frame.
     It raises :class:`BaselineFailed` when it cannot produce an answer.
     """

@@ -9,13 +9,13 @@ import numpy as np
 import torch
 import trimesh
 
-from jsrte.fit.api import minimize
-from jsrte.fit.optimize import SdfQuery
 from jsrte.fit.params import PARAMETER_NAMES, Init
+from jsrte.fit.query import SdfQuery
+from jsrte.fit.solve import minimize
 from jsrte.geometry.mesh import Normalization, normalized, unit_sphere_normalization
 from jsrte.metrics.surface import fscore
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decode import decode_mesh
+from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FitSettings, SdfSampling
 from jsrte.sdf.mesh_sdf import sample_sdf
 

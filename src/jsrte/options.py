@@ -1,0 +1,113 @@
+"""The options of one fit, in one object shared by ``jsrte fit``, ``prepare``, ``fit-many`` and
+``jsrte.fit()``: every option works wherever a fit runs, and is checked in one place.
+
+Only the standard library is imported here: fit-many's workers unpickle these options before
+they limit their threads and start PyTorch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, fields, replace
+from typing import TYPE_CHECKING
+
+from jsrte.errors import JsrteError
+from jsrte.presets import DEFAULT_PRESET, PRESETS
+
+if TYPE_CHECKING:
+    from jsrte.presets import Preset
+
+Vector = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How to fit a query (what to fit it with, the model, is given beside it).
+
+    Attributes
+    ----------
+    preset : fit settings by name (``jsrte.presets.PRESETS``)
+    up : the rotation axis if known (any length; made unit); default: the floor normal of a scan,
+        +y for a mesh
+    viewpoints : sensor positions in the scan's frame (scan units); default: the cameras of the
+        scan's JSON sidecar, if any
+    line_of_sight : free-space samples on the lines of sight from the viewpoints: True adds them,
+        False leaves them out, None follows the preset
+    free_axis : let the rotation axis move away from ``up`` (default: held, the paper's known-axis mode)
+    at : in a scan of several objects, fit the one nearest this point (scan units)
+    hypotheses : number of θ starts (None: the preset's grid, every 30°)
+    seed : seeds every random choice (the same seed gives the same fit)
+    device : where the decoder runs ("cpu", "cuda", "cuda:1"; None: where the model is)
+    units_check : refuse a scan whose object is implausibly large or small for metres
+    """
+
+    preset: str = DEFAULT_PRESET
+    up: Vector | None = None
+    viewpoints: tuple[Vector, ...] | None = None
+    line_of_sight: bool | None = None
+    free_axis: bool = False
+    at: Vector | None = None
+    hypotheses: int | None = None
+    seed: int = 0
+    device: str | None = None
+    units_check: bool = True
+
+    def __post_init__(self) -> None:
+        """Vectors (any sequence or array) become tuples of floats, checked finite."""
+        for name in ("up", "at"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, _vector(value, name))
+        if self.up is not None and not any(self.up):
+            raise JsrteError(f"up must be a non-zero vector X,Y,Z, got {self.up}")
+        if self.viewpoints is not None:
+            points = tuple(_vector(p, "viewpoints") for p in _rows(self.viewpoints))
+            object.__setattr__(self, "viewpoints", points or None)
+        if self.hypotheses is not None and not (isinstance(self.hypotheses, int) and self.hypotheses >= 1):
+            raise JsrteError(f"hypotheses must be a positive whole number, got {self.hypotheses}")
+        if self.device is not None:
+            object.__setattr__(self, "device", str(self.device))  # a torch.device is welcome too
+        if self.preset not in PRESETS:
+            raise JsrteError(f"unknown preset {self.preset!r}; known: {', '.join(PRESETS)}")
+
+    def settings(self) -> Preset:
+        """The preset with these options applied (line of sight, free axis)."""
+        from jsrte.presets import get_preset, with_line_of_sight
+
+        preset = get_preset(self.preset)
+        preset = replace(preset, scan_sdf=with_line_of_sight(preset.scan_sdf, self.line_of_sight))
+        if self.free_axis:
+            preset = replace(preset, fit=replace(preset.fit, hold_axis=False))
+        return preset
+
+    def record(self) -> dict[str, object]:
+        """The options as fit.json records them (JSON types: tuples become lists)."""
+        import json
+
+        return json.loads(json.dumps(asdict(self)))
+
+    def changed(self, **changes: object) -> FitOptions:
+        """A copy with ``changes`` (option names as keywords); a one-line error for an unknown name."""
+        unknown = sorted(set(changes) - {f.name for f in fields(self)})
+        if unknown:
+            raise JsrteError(f"unknown fit option {', '.join(unknown)}; known: "
+                             f"{', '.join(f.name for f in fields(self))}")
+        return replace(self, **changes)
+
+
+def _rows(value: object) -> Iterable[object]:
+    """The rows of a (k, 3) array or a sequence of points."""
+    return value.tolist() if hasattr(value, "tolist") else value  # type: ignore[union-attr,return-value]
+
+
+def _vector(value: object, name: str) -> Vector:
+    """(3,) finite floats from any sequence or array, or a one-line error naming the option."""
+    try:
+        items = value.tolist() if hasattr(value, "tolist") else list(value)  # type: ignore[union-attr,call-overload]
+        vector = tuple(float(x) for x in items)
+    except (TypeError, ValueError):
+        vector = ()
+    if len(vector) != 3 or not all(math.isfinite(x) for x in vector):
+        raise JsrteError(f"{name} must be three finite numbers X,Y,Z, got {value!r}")
+    return vector  # type: ignore[return-value]

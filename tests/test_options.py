@@ -1,0 +1,66 @@
+"""FitOptions: one object of fit options, checked in one place, applied to the preset."""
+
+import numpy as np
+import pytest
+
+import jsrte
+from analytic import octahedron_model, octahedron_query
+from jsrte.errors import JsrteError
+from jsrte.options import FitOptions
+from jsrte.presets import LINE_OF_SIGHT_SAMPLES, get_preset
+
+
+def test_vectors_of_any_kind_become_checked_tuples():
+    options = FitOptions(up=np.array([0, 0, 2]), at=[1, 2, 3], viewpoints=np.zeros((2, 3)), device=None)
+    assert options.up == (0.0, 0.0, 2.0) and options.at == (1.0, 2.0, 3.0)
+    assert options.viewpoints == ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert hash(options)  # frozen and hashable: it travels to fit-many's workers as it is
+    for bad, message in [({"up": (0, 0, 0)}, "non-zero"), ({"at": (1, 2)}, "three finite"),
+                         ({"viewpoints": [(0, 0, np.nan)]}, "three finite"), ({"hypotheses": 0}, "positive"),
+                         ({"preset": "quick"}, "unknown preset 'quick'; known: paper, fast")]:
+        with pytest.raises(JsrteError, match=message):
+            FitOptions(**bad)
+    with pytest.raises(JsrteError, match="unknown fit option hypothesis; known: preset, up"):
+        FitOptions().changed(hypothesis=3)
+
+
+def test_settings_apply_line_of_sight_and_free_axis_to_the_preset():
+    fast = get_preset("fast")
+    assert FitOptions().settings() == fast
+    assert FitOptions(line_of_sight=False).settings().scan_sdf.n_ray_freespace == 0
+    assert FitOptions(preset="paper", line_of_sight=True).settings().scan_sdf.n_ray_freespace == LINE_OF_SIGHT_SAMPLES
+    assert fast.fit.hold_axis and not FitOptions(free_axis=True).settings().fit.hold_axis
+
+
+def test_options_by_object_or_by_name_fit_alike():
+    model, query = octahedron_model(), octahedron_query()
+    by_name = jsrte.fit(query, model=model, preset="smoke", hypotheses=2, seed=4)
+    by_object = jsrte.fit(query, model=model, options=FitOptions(preset="smoke", hypotheses=2, seed=4))
+    over = jsrte.fit(query, model=model, options=FitOptions(preset="smoke", hypotheses=2, seed=9), seed=4)
+    assert by_name.transform.s == by_object.transform.s == over.transform.s
+    assert len(by_name.hypotheses) == 2
+
+
+def test_every_fit_option_is_a_flag_of_fit_and_fit_many_and_the_query_ones_of_prepare():
+    from dataclasses import fields
+
+    import typer.main
+
+    from jsrte.cli import _register, app
+
+    _register()
+    commands = typer.main.get_command(app).commands  # type: ignore[attr-defined]
+    flag = {"viewpoints": "viewpoint"}  # repeatable: one flag per viewpoint
+    every = {flag.get(f.name, f.name) for f in fields(FitOptions)}
+    query_only = every - {"hypotheses", "free_axis", "device"}  # prepare: the fit-time ones go to jsrte fit
+    for name, wanted in (("fit", every), ("fit-many", every), ("prepare", query_only)):
+        params = {p.name for p in commands[name].params}
+        assert wanted <= params, (name, wanted - params)
+
+
+def test_a_mode_typo_in_fit_settings_is_refused():
+    from jsrte.presets import FitSettings
+
+    with pytest.raises(ValueError, match="FitSettings.selection must be one of fscore, loss, got 'los'"):
+        FitSettings(selection="los")
+    assert FitSettings(solver="gauss-newton", latent_space="whitened", init_scale="height").solver == "gauss-newton"

@@ -71,7 +71,9 @@ def fit_command(
     scan: Path = typer.Argument(..., help="Scan (PLY/PCD/XYZ, metres), complete mesh (OBJ/OFF/STL/GLB) "
                                           "or SDF samples (.npz)."),
     out: Path = typer.Option(..., "--out", help="Output folder (fit.json, shape.ply, overlay.png)."),
-    model: str = typer.Option("chair", help="Shipped model name or model file."),
+    model: str = typer.Option("chair", help="Shipped model name or model file; several separated by commas "
+                                            "(chair,table), or auto (every shipped model): the class whose quick "
+                                            "fit explains the object best is fitted."),
     up: str = typer.Option(None, help="Known up axis X,Y,Z (default: the floor normal; +y for meshes)."),
     viewpoint: list[str] = typer.Option(
         None, help="Sensor position X,Y,Z in the scan's frame (metres), repeatable; 0,0,0 for a depth "
@@ -153,6 +155,10 @@ def _report(result, out: Path) -> None:  # noqa: ANN001
     t = result.transform
     typer.echo(f"scale {t.s:.4f}  yaw θ {np.degrees(result.angles['theta']) % 360:.1f}°  "
                f"translation {np.round(t.t, 3).tolist()}")
+    if "class" in result.info:
+        choice = result.info["class"]
+        margin = "" if choice["margin"] is None else f" (margin {choice['margin']:.4f} over the next)"
+        typer.echo(f"class {choice['chosen']}{margin}")
     typer.echo(f"winner by {result.criterion['name']}: {result.criterion['value']:.4f}; "
                f"time {result.timing['total']:.1f} s")
     typer.echo(f"wrote {out}/fit.json, shape.ply, shape_canonical.ply, overlay.png")

@@ -30,14 +30,15 @@ if TYPE_CHECKING:
 __version__ = "0.1.0"
 
 
-def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair", preset: str = "fast",
+def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list = "chair", preset: str = "fast",
         up: np.ndarray | None = None, viewpoints: np.ndarray | None = None, line_of_sight: bool | None = None,
         free_axis: bool = False, at: np.ndarray | None = None,
         hypotheses: int | None = None, seed: int = 0, progress: bool = False,
         device: str | torch.device | None = None, units_check: bool = True) -> FitResult:
     """Find the shape and the similarity transform that explain ``query`` (a scan file, a mesh,
-    SDF samples, a query file, or an ``SdfQuery``) with ``model`` (a shipped name, a file, or a
-    loaded model). Returns a ``FitResult`` (``.transform``, ``.latent``, ``.mesh``, ``.to_json()``).
+    SDF samples, a query file, or an ``SdfQuery``) with ``model`` (a shipped name, a file, a
+    loaded model; or several, or "auto": the class is chosen by quick fits). Returns a
+    ``FitResult`` (``.transform``, ``.latent``, ``.mesh``, ``.to_json()``).
 
     The same function as ``from jsrte.fit import fit`` (imported on first call, to keep
     ``import jsrte`` light); its docstring describes every parameter.

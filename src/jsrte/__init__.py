@@ -28,11 +28,12 @@ if TYPE_CHECKING:
 __version__ = "0.1.0"
 
 
-def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair",
+def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list = "chair",
         options: FitOptions | None = None, progress: bool = False, **changes: object) -> FitResult:
     """Find the shape and the similarity transform that explain ``query`` (a scan file, a mesh,
-    SDF samples, a query file, or an ``SdfQuery``) with ``model`` (a shipped name, a file, or a
-    loaded model). Returns a ``FitResult`` (``.transform``, ``.latent``, ``.mesh``, ``.to_json()``).
+    SDF samples, a query file, or an ``SdfQuery``) with ``model`` (a shipped name, a file, a
+    loaded model; or several, or "auto": the class is chosen by quick fits). Returns a
+    ``FitResult`` (``.transform``, ``.latent``, ``.mesh``, ``.to_json()``).
 
     Fit options (``jsrte.options.FitOptions``: preset, up, viewpoints, line_of_sight, free_axis,
     at, hypotheses, seed, device, units_check) come as ``options``, or by name:

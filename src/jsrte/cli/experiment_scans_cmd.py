@@ -15,7 +15,9 @@ from jsrte.errors import JsrteError
 def scans_command(
     out: Path = typer.Option(..., "--out", help="Output folder (results.csv, table.md, figures)."),
     category: str = typer.Option("chair", help="Shape class of the held-out shapes."),
-    model: str = typer.Option(None, help="Model file or shipped name (default: the category's shipped model)."),
+    model: str = typer.Option(None, help="Model file or shipped name (default: the category's shipped model); "
+                                         "auto or a comma-separated list lets jsrte choose the class (the table "
+                                         "gives the class accuracy; jsrte only)."),
     scale: str = typer.Option("quick", help="quick (4 scans) or paper (58 scans)."),
     scans: int = typer.Option(None, help="Number of virtual scans (overrides --scale)."),
     folder: Path = typer.Option(None, help="Use the real scans in this folder instead (no truth)."),
@@ -36,6 +38,7 @@ def scans_command(
     from jsrte.atomic import output_dir
     from jsrte.baselines import BASELINE_NAMES
     from jsrte.experiments.scans import SCALES, folder_cases, run_scan_experiment, virtual_cases
+    from jsrte.fit import model_names
     from jsrte.model.registry import resolve_model
 
     chosen = split_names(methods, ("jsrte",) + BASELINE_NAMES, "method")
@@ -45,12 +48,15 @@ def scans_command(
         raise JsrteError(f"--jobs must be positive, got {jobs}")
     check_threads(threads)
     check_out_folder(out, marker="table.md", overwrite=overwrite)
-    loaded = resolve_model(model or category)
+    several = model is not None and (model == "auto" or "," in model)
+    if several and any(m != "jsrte" for m in chosen):
+        raise JsrteError(f"--model {model}: only jsrte chooses the class; pass --methods jsrte")
+    loaded = model_names(model) if several else resolve_model(model or category)
     set_threads(threads)
     with output_dir(out, overwrite=overwrite, marker="table.md") as folder_out:
         cases = (folder_cases(folder) if folder is not None
                  else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed,
                                     first=first, clutter=clutter))
         run_scan_experiment(cases, list(chosen), folder_out, model=loaded, preset=preset, seed=seed,
-                            jobs=jobs, threads=threads or None, report=html_report)
+                            jobs=jobs, threads=threads or None, report=html_report, category=category)
     typer.echo((out / "table.md").read_text())

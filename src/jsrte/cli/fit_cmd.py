@@ -18,7 +18,7 @@ def fit_command(
     scan: Path = typer.Argument(..., help="Scan (PLY/PCD/XYZ, metres), complete mesh (OBJ/OFF/STL/GLB) "
                                           "or SDF samples (.npz)."),
     out: Path = typer.Option(..., "--out", help="Output folder (fit.json, shape.ply, overlay.png)."),
-    model: str = typer.Option("chair", help="Shipped model name or model file."),
+    model: str = opt.MODEL,
     preset: str = opt.PRESET, up: str = opt.UP, viewpoint: list[str] = opt.VIEWPOINT,
     line_of_sight: bool = opt.LINE_OF_SIGHT, free_axis: bool = opt.FREE_AXIS, at: str = opt.AT,
     hypotheses: int = opt.HYPOTHESES, seed: int = opt.SEED, device: str = opt.DEVICE,
@@ -81,6 +81,10 @@ def _report(result, out: Path) -> None:  # noqa: ANN001
     t = result.transform
     typer.echo(f"scale {t.s:.4f}  yaw θ {np.degrees(result.angles['theta']) % 360:.1f}°  "
                f"translation {np.round(t.t, 3).tolist()}")
+    if "class" in result.info:
+        choice = result.info["class"]
+        margin = "" if choice["margin"] is None else f" (margin {choice['margin']:.4f} over the next)"
+        typer.echo(f"class {choice['chosen']}{margin}")
     typer.echo(f"winner by {result.criterion['name']}: {result.criterion['value']:.4f}; "
                f"time {result.timing['total']:.1f} s")
     typer.echo(f"wrote {out}/fit.json, shape.ply, shape_canonical.ply, overlay.png")

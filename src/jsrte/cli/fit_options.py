@@ -15,6 +15,9 @@ from jsrte.presets import DEFAULT_PRESET, PRESETS
 if TYPE_CHECKING:  # numpy is imported by the functions that run, never for --help
     import numpy as np
 
+MODEL = typer.Option("chair", help="Shipped model name or model file; several separated by commas (chair,table), "
+                                   "or auto (every shipped model): the class whose quick fit explains the object "
+                                   "best is fitted.")
 PRESET = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)} (docs/presets.md).")
 UP = typer.Option(None, help="Known up axis X,Y,Z (default: the floor normal; +y for meshes).")
 VIEWPOINT = typer.Option(

@@ -122,7 +122,7 @@ def run_method(method: str, case: ScanCase, *, model: object, database: object, 
 def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *, model: object,
                         preset: str = "fast", seed: int = 0, figure_scans: int = 4,
                         progress: bool = True, jobs: int = 1, threads: int | None = None,
-                        report: bool = True) -> list[dict]:
+                        report: bool = True, category: str | None = None) -> list[dict]:
     """Every method on every scan; writes results.csv, table.md, table.csv, figure PNGs and, with
     ``report``, report.html (a 3D view of each scan's jsrte fit, as ``jsrte report``).
 
@@ -156,7 +156,7 @@ def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *,
             record(case, case_rows, results)
             bar.update(1)
     bar.close()
-    _write_table(rows, methods, out, n_scans=len(cases))
+    _write_table(rows, methods, out, n_scans=len(cases), category=category)
     if html is not None:
         html.write(out / "report.html", title=f"jsrte experiment scans: {out.resolve().name}")
     return rows
@@ -227,6 +227,9 @@ class _CaseContext:
             if result is not None:
                 results[method] = result
                 row.update(_scores(result, case, scan_points, self.seed, score_against_truth))
+                if "class" in result.info:
+                    row.update(fitted_class=result.info["class"]["chosen"],
+                               class_margin=result.info["class"]["margin"])
             rows.append(row)
         return rows, results
 
@@ -330,8 +333,9 @@ def _write_rows(rows: list[dict], path: Path) -> None:
     write_with(path, write)
 
 
-def summarize(rows: list[dict], methods: list[str]) -> list[dict]:
-    """Per method: mean F@5% vs truth and vs scan (failures count as 0), failures, mean time."""
+def summarize(rows: list[dict], methods: list[str], category: str | None = None) -> list[dict]:
+    """Per method: mean F@5% vs truth and vs scan (failures count as 0), failures, mean time,
+    and with the class left to the fit (``fitted_class``), the share of scans given ``category``."""
     table = []
     for m in methods:
         mine = [r for r in rows if r["method"] == m]
@@ -345,9 +349,18 @@ def summarize(rows: list[dict], methods: list[str]) -> list[dict]:
             "rotation_error_deg_median": _median(mine, "truth_rotation_error_deg"),
             "scale_error_rel_median": _median(mine, "truth_scale_error_rel"),
             "seconds_mean": round(float(np.mean([r["seconds"] for r in mine])), 1) if mine else None,
+            "class_accuracy": _class_accuracy(mine, category),
             "paper_fscore": PAPER_TABLE2.get(m),
         })
     return table
+
+
+def _class_accuracy(rows: list[dict], category: str | None) -> float | None:
+    """Share of ``rows`` whose fitted class is ``category`` (failures count as wrong); None when
+    no row chose its class."""
+    if category is None or not any("fitted_class" in r for r in rows):
+        return None
+    return round(float(np.mean([r.get("fitted_class") == category for r in rows])), 3)
 
 
 def _median(rows: list[dict], key: str) -> float | None:
@@ -355,8 +368,9 @@ def _median(rows: list[dict], key: str) -> float | None:
     return round(float(np.median(values)), 3) if values else None
 
 
-def _write_table(rows: list[dict], methods: list[str], out: Path, *, n_scans: int) -> None:
-    table = summarize(rows, methods)
+def _write_table(rows: list[dict], methods: list[str], out: Path, *, n_scans: int,
+                 category: str | None = None) -> None:
+    table = summarize(rows, methods, category)
     _write_rows(table, out / "table.csv")
     lines = [f"Scan experiment: {n_scans} scans of held-out shapes (evaluation seed set, never trained on). "
              "Failures count as F = 0.", "",
@@ -369,6 +383,8 @@ def _write_table(rows: list[dict], methods: list[str], out: Path, *, n_scans: in
                        ("F@5% (paper, Redwood chairs)", "paper_fscore"),
                        ("median rotation error (°)", "rotation_error_deg_median"),
                        ("median relative scale error", "scale_error_rel_median"),
-                       ("failed scans", "failed"), ("mean time per scan (s)", "seconds_mean")]:
+                       ("failed scans", "failed"), ("mean time per scan (s)", "seconds_mean")] + (
+                          [(f"class chosen = {category}", "class_accuracy")]
+                          if any(t["class_accuracy"] is not None for t in table) else []):
         lines.append(f"| {label} | " + " | ".join(cell(t[key]) for t in table) + " |")
     write_bytes_atomic(out / "table.md", ("\n".join(lines) + "\n").encode())

@@ -13,7 +13,7 @@ from jsrte.options import FitOptions
 from jsrte.result import FitResult
 
 
-def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "chair",
+def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list = "chair",
         options: FitOptions | None = None, progress: bool = False, **changes: object) -> FitResult:
     """Find the shape and the similarity transform that explain ``query``.
 
@@ -22,26 +22,45 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
     query : a scan (PLY/PCD/XYZ, metres, any pose, floor optional with ``up``), a complete
         mesh (OBJ/OFF/STL/GLB), an SDF-sample ``.npz`` (``jsrte sample``), a query file
         (``jsrte prepare``), or an ``SdfQuery`` (formats: ``jsrte.formats``)
-    model : a shipped model's name, a model file, or a loaded model
+    model : a shipped model's name, a model file, or a loaded model; or several (a list, or
+        names separated by commas), or "auto" (every shipped model): each is fitted quickly to
+        the scan's candidate objects and the class that explains its best candidate best is
+        kept (``jsrte.fit.screen``; fit.json's ``class`` records every class's score)
     options : how to fit (:class:`jsrte.options.FitOptions`: preset, up, viewpoints,
         line_of_sight, free_axis, at, hypotheses, seed, device, units_check); default: the
-        defaults of ``jsrte fit``
+        defaults of ``jsrte fit``. In a scan of several objects the object is the one nearest
+        ``at``, else, of the candidates whose proportions match the class best, the one a quick
+        fit explains best (fit.json's ``query.segmentation`` records the choice and the others)
     progress : show a progress bar
     changes : options by name, applied over ``options`` (``fit(scan, up=(0, 0, 1), seed=3)``);
         ``device`` moves a loaded ``model`` there (None: a loaded model stays where it is, a
         named one runs on the CPU)
     """
+    from jsrte.formats import input_kind
     from jsrte.model.decoder import decoder_device
-    from jsrte.model.registry import resolve_model
     from jsrte.timing import stage
 
     options = (options or FitOptions()).changed(**changes)
     settings = options.settings()
+    class_choice = None
     with stage("load"):
-        loaded = model if isinstance(model, DeepSdfModel) else resolve_model(model)
-        if options.device is not None:
-            loaded.to(options.device)
-        sdf_query = query if isinstance(query, SdfQuery) else fit_query_of(query, options, model=loaded)
+        models = load_models(model, options.device)
+        is_scan = not isinstance(query, SdfQuery) and input_kind(query) == "scan"
+    if is_scan and options.at is None:
+        sdf_query, loaded, class_choice = _choose_in_scan(query, models, options)
+    else:
+        if options.at is not None and len(models) > 1:
+            from jsrte.errors import JsrteError
+
+            raise JsrteError("--at picks an object for one model; name a single --model with it")
+        loaded = next(iter(models.values()))
+        with stage("load"):
+            sdf_query = query if isinstance(query, SdfQuery) else fit_query_of(query, options, model=loaded)
+        if len(models) > 1:
+            from jsrte.fit.screen import choose_class
+
+            choice = choose_class(sdf_query, models, seed=options.seed)
+            loaded, class_choice = choice.model, choice.class_json()
     result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=options.hypotheses, seed=options.seed,
                        progress=progress)
     result.query_points = sdf_query.surface
@@ -49,13 +68,16 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel = "cha
                        model_sha256=loaded.meta.get("sha256"), query=sdf_query.info,
                        device=str(decoder_device(loaded.decoder)),
                        up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())
+    if class_choice is not None:
+        result.info["class"] = class_choice
     return result
 
 
 def fit_query_of(path: str | Path, options: FitOptions, *, model: DeepSdfModel | None = None) -> SdfQuery:
-    """The SDF query of the file at ``path`` as the fit with ``options`` sees it (``jsrte prepare``
-    saves it). In a scan of several objects the object is the one nearest ``options.at``, else the
-    one most like ``model``'s class, else the largest."""
+    """The SDF query of the file at ``path`` as a fit with ``options`` and one ``model`` sees it
+    without the quick-fit screen (``jsrte prepare`` saves it). In a scan of several objects the
+    object is the one nearest ``options.at``, else the one most like ``model``'s class, else the
+    largest."""
     from jsrte.fit.query import load_query
 
     return load_query(path, rng=np.random.default_rng(options.seed), up=_array(options.up),
@@ -64,12 +86,71 @@ def fit_query_of(path: str | Path, options: FitOptions, *, model: DeepSdfModel |
                       shape=None if model is None else _shape_if_scan(path, model))
 
 
+def model_names(model: str | Path | DeepSdfModel | list) -> list:
+    """The models ``model`` names: "auto" is every shipped model (JsrteError when none is
+    shipped), "a,b" a list of names, a list stays a list, anything else is one model."""
+    from jsrte.errors import JsrteError
+    from jsrte.model.registry import shipped_models
+
+    if isinstance(model, (list, tuple)):
+        names = list(model)
+    elif isinstance(model, str) and model == "auto":
+        names = list(shipped_models())
+        if not names:
+            raise JsrteError("--model auto: no shipped model in this installation (pass a model file)")
+    elif isinstance(model, str) and "," in model:
+        names = [m.strip() for m in model.split(",") if m.strip()]
+    else:
+        names = [model]
+    if not names:
+        raise JsrteError(f"no model named in {model!r}")
+    return names
+
+
+def load_models(model: str | Path | DeepSdfModel | list, device: str | None) -> dict:
+    """Name -> loaded ``DeepSdfModel`` of every model ``model`` names (:func:`model_names`),
+    moved to ``device`` if given."""
+    from jsrte.model.registry import resolve_model
+
+    models = {}
+    for m in model_names(model):
+        loaded = m if isinstance(m, DeepSdfModel) else resolve_model(m)
+        if device is not None:
+            loaded.to(device)
+        models[loaded.name if isinstance(m, DeepSdfModel) else str(m)] = loaded
+    return models
+
+
+def _choose_in_scan(query: str | Path, models: dict,
+                    options: FitOptions) -> tuple[SdfQuery, DeepSdfModel, dict | None]:
+    """The scan's object (and class, with several models) chosen by quick fits
+    (``jsrte.fit.screen.choose_in_scan``): its query, its model and the class record (None
+    with one model)."""
+    from jsrte.fit.query import class_shape, scan_candidates
+    from jsrte.fit.screen import choose_in_scan
+    from jsrte.timing import stage
+
+    single = len(models) == 1
+    rng = np.random.default_rng(options.seed)
+    settings = options.settings()
+
+    def segment(model: DeepSdfModel) -> object:
+        with stage("load"):
+            return scan_candidates(query, rng=rng if single else np.random.default_rng(options.seed),
+                                   up=_array(options.up), viewpoints=_array(options.viewpoints),
+                                   settings=settings.scan_sdf, units_check=options.units_check,
+                                   shape=class_shape(model))
+
+    choice = choose_in_scan(query, models, segment=segment, seed=options.seed, final_rng=rng)
+    return choice.query, choice.model, None if single else choice.class_json()
+
+
 def _array(value: tuple | None) -> np.ndarray | None:
     """A tuple option as a float64 array (None stays None)."""
     return None if value is None else np.asarray(value, dtype=np.float64)
 
 
-def _shape_if_scan(query: str | Path, model: DeepSdfModel) -> object:
+def _shape_if_scan(query: str | Path | SdfQuery, model: DeepSdfModel) -> object:
     """The class's proportions when ``query`` is a scan (segmentation needs them), else None."""
     from jsrte.fit.query import class_shape
     from jsrte.formats import input_kind
@@ -77,4 +158,4 @@ def _shape_if_scan(query: str | Path, model: DeepSdfModel) -> object:
     return class_shape(model) if input_kind(query) == "scan" else None
 
 
-__all__ = ["FitOptions", "FitResult", "SdfQuery", "fit", "fit_query", "fit_query_of"]
+__all__ = ["FitOptions", "FitResult", "SdfQuery", "fit", "fit_query", "fit_query_of", "load_models", "model_names"]

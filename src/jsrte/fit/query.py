@@ -14,7 +14,7 @@ from jsrte.errors import JsrteError
 from jsrte.formats import input_kind
 from jsrte.geometry.mesh import load_mesh
 from jsrte.presets import ScanSdf, SdfSampling
-from jsrte.scans.segment import ClassShape
+from jsrte.scans.segment import ClassShape, Segmentation
 from jsrte.sdf.mesh_sdf import SdfSamples, sample_sdf
 from jsrte.timing import stage
 
@@ -90,6 +90,84 @@ def class_shape(model: object) -> ClassShape | None:
                       profile=np.asarray(meta["class_profile"], dtype=np.float64))
 
 
+@dataclass
+class ScanCandidates:
+    """A scan segmented into candidate objects, any of which becomes an SDF query.
+
+    Attributes
+    ----------
+    segmented : the scan, its floor and its candidates (``jsrte.scans.preprocess.SegmentedScan``)
+    settings : how the SDF samples are drawn
+    seed : seeds each candidate's samples (the same candidate always gives the same query)
+    """
+
+    segmented: object  # jsrte.scans.preprocess.SegmentedScan
+    settings: ScanSdf = field(default_factory=ScanSdf)
+    seed: int = 0
+
+    @property
+    def segmentation(self) -> Segmentation:
+        """The candidates and the choice (``jsrte.scans.segment.Segmentation``)."""
+        return self.segmented.segmentation
+
+    def valid(self) -> list[int]:
+        """Positions of the candidates that may be the object, best class rank first."""
+        cands = self.segmentation.candidates
+        ok = [k for k, c in enumerate(cands) if not c.rejected]
+        return sorted(ok, key=lambda k: cands[k].summary.get("rank", -len(cands[k].index)))
+
+    def query(self, candidate: int | None = None, *, keep: np.ndarray | None = None,
+              rng: np.random.Generator | None = None) -> SdfQuery:
+        """The SDF query of the candidate at position ``candidate`` (default: the chosen one), of
+        its points in ``keep`` (bool mask over them) if given: surface samples from its points
+        only; line-of-sight free space from every point the sensor saw. ``rng`` draws the
+        samples (default: one seeded by ``seed``)."""
+        from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples
+
+        segmented, settings = self.segmented, self.settings
+        prepared = segmented.prepare(candidate, keep=keep)
+        rng = np.random.default_rng(self.seed) if rng is None else rng
+        with stage("query samples"):
+            points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
+            n_rays = 0
+            if segmented.viewpoints is not None:
+                ray_points, ray_sdf = ray_freespace_samples(prepared.points, segmented.cloud.points,
+                                                            segmented.viewpoints, rng=rng, settings=settings)
+                points, sdf, n_rays = (np.concatenate([points, ray_points]), np.concatenate([sdf, ray_sdf]),
+                                       len(ray_sdf))
+        floor_offset = prepared.floor.offset if prepared.floor is not None else None
+        return SdfQuery(points.astype(np.float64), sdf.astype(np.float64), prepared.points, up=prepared.up,
+                        floor_offset=floor_offset,
+                        info={"input": "scan", "scan_points": len(segmented.cloud.points),
+                              "object_points": len(prepared.points), "samples": len(sdf),
+                              "ray_freespace_samples": n_rays,
+                              "floor_found": prepared.floor is not None,
+                              "segmentation": self.segmentation.to_json()},
+                        n_refine_only=n_rays)
+
+
+def scan_candidates(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
+                    viewpoints: np.ndarray | None = None, settings: ScanSdf = ScanSdf(),
+                    units_check: bool = True, shape: ClassShape | None = None,
+                    at: np.ndarray | None = None) -> ScanCandidates:
+    """A scan (point cloud or scan mesh, metres, floor optional when ``up`` is given) loaded and
+    segmented into candidate objects (``jsrte.scans.segment``): the one nearest ``at`` (3,)
+    is chosen if given, else the one most like ``shape`` (the class's proportions, see
+    :func:`class_shape`). The sensor's ``viewpoints`` (k, 3) are given, or the ``cameras`` of
+    the scan's JSON sidecar."""
+    from jsrte.scans.io import load_scan, read_scan_info
+    from jsrte.scans.preprocess import PrepareSettings, segment_scan
+
+    with stage("load"):
+        cloud = load_scan(path, rng=rng)
+        info = read_scan_info(path) if Path(path).suffix.lower() == ".ply" else None
+    if viewpoints is None and info is not None and len(info.cameras):
+        viewpoints = info.cameras
+    segmented = segment_scan(cloud, rng=rng, up=up, viewpoints=viewpoints, shape=shape, at=at,
+                             settings=PrepareSettings(units_check=units_check))
+    return ScanCandidates(segmented, settings)
+
+
 def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
                     viewpoints: np.ndarray | None = None, settings: ScanSdf = ScanSdf(),
                     units_check: bool = True, shape: ClassShape | None = None,
@@ -105,34 +183,8 @@ def query_from_scan(path: str | Path, *, rng: np.random.Generator, up: np.ndarra
     :func:`class_shape`). Only its points give surface samples; everything else the sensor saw
     (floor, walls, other objects) only bounds free space on the lines of sight, never where a
     point of the object was seen (samples keep ``ray_margin_m`` from every object point)."""
-    from jsrte.scans.io import load_scan, read_scan_info
-    from jsrte.scans.preprocess import PrepareSettings, prepare_scan
-    from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples
-
-    with stage("load"):
-        cloud = load_scan(path, rng=rng)
-        info = read_scan_info(path) if Path(path).suffix.lower() == ".ply" else None
-    if viewpoints is None and info is not None and len(info.cameras):
-        viewpoints = info.cameras
-    prepared = prepare_scan(cloud, rng=rng, up=up, viewpoints=viewpoints, shape=shape, at=at,
-                            settings=PrepareSettings(units_check=units_check))
-    with stage("query samples"):
-        points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
-        n_rays = 0
-        if viewpoints is not None:
-            ray_points, ray_sdf = ray_freespace_samples(prepared.points, cloud.points, viewpoints,
-                                                        rng=rng, settings=settings)
-            points, sdf, n_rays = (np.concatenate([points, ray_points]), np.concatenate([sdf, ray_sdf]),
-                                   len(ray_sdf))
-    floor_offset = prepared.floor.offset if prepared.floor is not None else None
-    return SdfQuery(points.astype(np.float64), sdf.astype(np.float64), prepared.points, up=prepared.up,
-                    floor_offset=floor_offset,
-                    info={"input": "scan", "scan_points": len(cloud.points),
-                          "object_points": len(prepared.points), "samples": len(sdf),
-                          "ray_freespace_samples": n_rays,
-                          "floor_found": prepared.floor is not None,
-                          "segmentation": prepared.segmentation.to_json()},
-                    n_refine_only=n_rays)
+    return scan_candidates(path, rng=rng, up=up, viewpoints=viewpoints, settings=settings,
+                           units_check=units_check, shape=shape, at=at).query(rng=rng)
 
 
 QUERY_FORMAT = "jsrte-query"

@@ -438,33 +438,51 @@ def check_units(
 # --- the pipeline ----------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class SegmentedScan:
+    """A scan cut into candidate objects, before any one is prepared for the fit.
+
+    Attributes
+    ----------
+    cloud : the scan
+    index : (m,) int64 indices into ``cloud.points`` of the points above the floor (the cloud
+        that ``segmentation``'s indices refer to)
+    up : (3,) float64 unit up axis
+    floor : the floor found, or None
+    segmentation : the candidates and the one chosen so far
+    viewpoints : (k, 3) camera centres, or None
+    settings : the preprocessing's settings
+    """
+
+    cloud: ScanCloud
+    index: np.ndarray = field(repr=False)
+    up: np.ndarray
+    floor: Floor | None
+    segmentation: Segmentation = field(repr=False)
+    viewpoints: np.ndarray | None = None
+    settings: PrepareSettings = PrepareSettings()
+
+    def prepare(self, candidate: int | None = None, *, keep: np.ndarray | None = None) -> PreparedScan:
+        """The candidate at position ``candidate`` of the segmentation (default: the chosen one)
+        ready for the fit: :func:`prepare_object` on its points (only those of ``keep`` (p,)
+        bool over them, if given)."""
+        k = self.segmentation.chosen if candidate is None else candidate
+        chosen = self.segmentation.candidates[k].index
+        if keep is not None:
+            chosen = chosen[keep]
+        return prepare_object(self, self.index[chosen])
+
+
 @timed_stage("floor and cleaning")
-def prepare_scan(
+def segment_scan(
     cloud: ScanCloud, *, rng: np.random.Generator, up: np.ndarray | None = None,
     viewpoints: np.ndarray | None = None, shape: ClassShape | None = None, at: np.ndarray | None = None,
     settings: PrepareSettings = PrepareSettings(), segment: SegmentSettings = SegmentSettings(),
-) -> PreparedScan:
-    """The paper's preprocessing of a real scan: the object's points with outward normals.
-
-    Steps: floor plane (RANSAC, :func:`segment_floor`) whose normal is the up
-    axis unless ``up`` is given (then a plane perpendicular to ``up`` is still removed as
-    floor if found); points within the floor clearance (or below the floor) removed; walls
-    removed and the object told from other objects (:func:`jsrte.scans.segment.segment_objects`:
-    the cluster nearest ``at``, else the one that matches ``shape`` best, else the largest,
-    with the fragments near it); statistical outlier removal; hidden point removal from
-    ``viewpoints`` (k, 3) if given; the object's size checked for metres (:func:`check_units`,
-    unless ``settings.units_check`` is False); normals kept from the file (re-oriented towards
-    the viewpoints that see them if viewpoints are known) or estimated.
-
-    Parameters
-    ----------
-    cloud : the scan (metres)
-    rng : seeds the floor's RANSAC (the walls' RANSAC has its own fixed seed)
-    up : (3,) the up axis if known (skips relying on the floor for it)
-    viewpoints : (k, 3) camera centres if known
-    shape : the class's proportions, to pick its object among several
-    at : (3,) pick the object nearest this point instead (scan units)
-    """
+) -> SegmentedScan:
+    """The first half of :func:`prepare_scan`: the floor (and up axis) and the candidate objects
+    above it (:func:`jsrte.scans.segment.segment_objects`; the one nearest ``at`` (3,), else the
+    one most like ``shape``, else the largest, is chosen). Each candidate can then be prepared
+    for a fit (:meth:`SegmentedScan.prepare`)."""
     points = cloud.points
     index = np.arange(len(points))
     if viewpoints is not None:
@@ -490,7 +508,17 @@ def prepare_scan(
         if settings.units_check:  # nothing of an object's size: say first if the units look wrong
             check_units(points[index], cloud.path, settings=settings, what="what stands on the floor")
         raise
-    index = index[segmentation.index]
+    return SegmentedScan(cloud=cloud, index=index, up=up_axis, floor=floor, segmentation=segmentation,
+                         viewpoints=viewpoints, settings=settings)
+
+
+@timed_stage("floor and cleaning")
+def prepare_object(segmented: SegmentedScan, index: np.ndarray) -> PreparedScan:
+    """The second half of :func:`prepare_scan`: the object's points ``index`` (p,) (into the
+    scan's cloud) cleaned (statistical outliers, hidden points), checked for metres, with
+    outward normals."""
+    cloud, viewpoints, settings = segmented.cloud, segmented.viewpoints, segmented.settings
+    points = cloud.points
     index = index[remove_outliers(points[index], neighbours=settings.sor_neighbours,
                                   std_ratio=settings.sor_std_ratio)]
     if viewpoints is not None:
@@ -504,14 +532,45 @@ def prepare_scan(
         check_units(points[index], cloud.path, settings=settings)
     kept = points[index]
     if cloud.normals is None:
-        normals = estimate_normals(kept, viewpoints=viewpoints, up=up_axis, settings=settings)
+        normals = estimate_normals(kept, viewpoints=viewpoints, up=segmented.up, settings=settings)
     elif viewpoints is not None:
         normals = orient_towards_viewpoints(kept, cloud.normals[index], viewpoints,
                                             settings=settings)
     else:
         normals = cloud.normals[index].copy()
-    return PreparedScan(points=kept, normals=normals, up=up_axis, floor=floor, index=index,
-                        segmentation=segmentation)
+    return PreparedScan(points=kept, normals=normals, up=segmented.up, floor=segmented.floor, index=index,
+                        segmentation=segmented.segmentation)
+
+
+def prepare_scan(
+    cloud: ScanCloud, *, rng: np.random.Generator, up: np.ndarray | None = None,
+    viewpoints: np.ndarray | None = None, shape: ClassShape | None = None, at: np.ndarray | None = None,
+    settings: PrepareSettings = PrepareSettings(), segment: SegmentSettings = SegmentSettings(),
+) -> PreparedScan:
+    """The paper's preprocessing of a real scan: the object's points with outward normals.
+
+    Steps: floor plane (RANSAC, :func:`segment_floor`) whose normal is the up
+    axis unless ``up`` is given (then a plane perpendicular to ``up`` is still removed as
+    floor if found); points within the floor clearance (or below the floor) removed; walls
+    removed and the object told from other objects (:func:`jsrte.scans.segment.segment_objects`:
+    the cluster nearest ``at``, else the one that matches ``shape`` best, else the largest,
+    with the fragments near it); statistical outlier removal; hidden point removal from
+    ``viewpoints`` (k, 3) if given; the object's size checked for metres (:func:`check_units`,
+    unless ``settings.units_check`` is False); normals kept from the file (re-oriented towards
+    the viewpoints that see them if viewpoints are known) or estimated. The two halves are
+    :func:`segment_scan` and :func:`prepare_object`.
+
+    Parameters
+    ----------
+    cloud : the scan (metres)
+    rng : seeds the floor's RANSAC (the walls' RANSAC has its own fixed seed)
+    up : (3,) the up axis if known (skips relying on the floor for it)
+    viewpoints : (k, 3) camera centres if known
+    shape : the class's proportions, to pick its object among several
+    at : (3,) pick the object nearest this point instead (scan units)
+    """
+    return segment_scan(cloud, rng=rng, up=up, viewpoints=viewpoints, shape=shape, at=at, settings=settings,
+                        segment=segment).prepare()
 
 
 def _floor_and_up(cloud: ScanCloud, up: np.ndarray | None, viewpoints: np.ndarray | None,

@@ -1,0 +1,100 @@
+"""Choosing the object, and its class, by a quick fit of each candidate (jsrte.fit.screen)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import trimesh
+
+from cli_runner import run_cli
+from jsrte.fit import model_names
+from jsrte.fit.query import scan_candidates
+from jsrte.fit.screen import choose_in_scan
+from jsrte.model.registry import resolve_model
+from jsrte.scans.scanner import scan_mesh, write_scan
+from jsrte.scans.scene import SceneSettings, scan_room, write_room
+from jsrte.scans.segment import ClassShape
+from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
+
+SMALL = SceneSettings(scanner=replace(SceneSettings().scanner, width=120, height=90), walls=(1, 1),
+                      wall_gap_m=(0.2, 0.3), neighbour_gap_m=(0.3, 0.5), first_neighbour_gap_m=(0.3, 0.4),
+                      mixed_pixel_fraction=0.0)
+"""One wall and a box well apart from the chair (one cluster each)."""
+
+
+def box(size: tuple[float, float, float]) -> trimesh.Trimesh:
+    mesh = trimesh.creation.box(size)
+    mesh.apply_translation([0.0, size[1] / 2.0, 0.0])
+    return mesh
+
+
+def held_out(category: str, index: int = 100) -> trimesh.Trimesh:
+    return generate_shape(category, shape_seed(EVAL_SET_SEED, index)).mesh
+
+
+@pytest.fixture(scope="module")
+def chair_model():
+    return resolve_model("chair")
+
+
+@pytest.mark.slow
+def test_the_fit_picks_the_chair_that_a_box_outranks_by_proportions(tmp_path, chair_model):
+    crate = box((0.45, 0.8, 0.45))
+    settings = replace(SMALL, scanner=replace(SMALL.scanner, width=240, height=180))
+    room = scan_room(held_out("chair", 106), rng=np.random.default_rng(3), settings=settings, target_kind="chair",
+                     others=[("box", crate, "box")])
+    ply = write_room(room, tmp_path / "room")
+    box_like = ClassShape.of_mesh("box-like", crate.vertices, crate.sample(3000, seed=0))
+
+    def segment(model):  # proportions that favour the box: the class rank alone takes it
+        return scan_candidates(ply, rng=np.random.default_rng(0), shape=box_like)
+
+    cands = segment(chair_model)
+    labels = room.labels[cands.segmented.index]
+    first = cands.segmentation.candidates[cands.valid()[0]]
+    assert np.mean(labels[first.index] == 1) > 0.9  # the box ranks first by proportions
+    choice = choose_in_scan(ply, {"chair": chair_model}, segment=segment)
+    seg = choice.query.info["segmentation"]
+    chosen = seg["candidates"][seg["chosen"]]
+    picked = cands.segmentation.candidates[seg["chosen"]].index
+    assert np.mean(labels[picked] == 0) > 0.9 and len(picked) > 0.8 * np.sum(labels == 0)
+    assert seg["chosen_by"] == "fit" and chosen["chosen"]
+    screened = [c["screen"] for c in seg["candidates"] if "screen" in c]
+    assert len(screened) >= 2 and chosen["screen"]["score"] == min(s["score"] for s in screened)
+    assert chosen["screen"]["residual"] < 0.03  # the chair's points lie on its fitted surface
+
+
+def test_model_names():
+    assert model_names("chair, table") == ["chair", "table"]
+    assert model_names("auto") == ["bed", "chair", "sofa", "table"]
+    assert model_names("chair") == ["chair"]
+
+
+def test_auto_without_shipped_models_is_a_clear_error(tmp_path, monkeypatch, capsys):
+    import jsrte.model.registry as registry
+
+    scan = scan_mesh(held_out("chair", 102), rng=np.random.default_rng(5))
+    ply = write_scan(scan, tmp_path / "chair.ply")
+    monkeypatch.setattr(registry, "shipped_models", lambda: {})
+    code, _, err = run_cli(monkeypatch, capsys, "fit", ply, "--model", "auto", "--out", tmp_path / "fit",
+                           "--no-progress")
+    assert code != 0 and "no shipped model" in err and err.count("\n") == 1
+    assert not (tmp_path / "fit").exists()
+
+
+@pytest.mark.slow
+def test_chair_or_table_on_a_table_scan_is_a_table(tmp_path, monkeypatch, capsys):
+    """``jsrte fit TABLE_SCAN --model table,chair`` fits a table; fit.json holds both scores."""
+    scan = scan_mesh(held_out("table", 101), rng=np.random.default_rng(4))
+    ply = write_scan(scan, tmp_path / "table.ply")
+    code, out, err = run_cli(monkeypatch, capsys, "fit", ply, "--model", "chair,table", "--preset", "smoke",
+                             "--hypotheses", "2", "--threads", "1", "--no-progress", "--out", tmp_path / "fit")
+    assert code == 0, err
+    record = json.loads((tmp_path / "fit" / "fit.json").read_text())
+    choice = record["class"]
+    assert "class table" in out and choice["chosen"] == "table" and record["model"] == "table"
+    assert set(choice["scores"]) == {"chair", "table"} and choice["margin"] > 0
+    assert choice["scores"]["table"] + choice["margin"] == pytest.approx(choice["scores"]["chair"], abs=1e-4)

@@ -209,6 +209,7 @@ class _CaseContext:
     def run(self, case: ScanCase) -> tuple[list[dict], dict]:
         """Rows (one per method) and the results by method, for one scan."""
         from jsrte.experiments.truth import score_against_truth
+        from jsrte.fit.quality import quality_columns
 
         scan_points = _scan_points(case)
         rows, results = [], {}
@@ -225,6 +226,7 @@ class _CaseContext:
             if result is not None:
                 results[method] = result
                 row.update(_scores(result, case, scan_points, self.seed, score_against_truth))
+                row.update(quality_columns(result))
             rows.append(row)
         return rows, results
 

@@ -24,7 +24,7 @@ from jsrte.fit.quality import RULE, flag_of
 
 BAD, GOOD = 0.7, 0.85
 """F@5% below BAD: a fit the flag should catch; at least GOOD: a fit it should leave alone."""
-MEASURES = ("inlier_share", "free_space_violation")
+MEASURES = ("inlier_share", "loss_margin_rel", "free_space_violation", "latent_mahalanobis_ratio")
 
 
 def read_fits(path: Path) -> list[dict]:
@@ -64,15 +64,19 @@ def _row(name: str, r: dict) -> str:
 
 def search(fits: list[dict]) -> list[tuple[dict, dict]]:
     """Rules on a grid that meet both aims on ``fits``, best (most bad fits caught, fewest good
-    flagged) first."""
+    flagged, then the loosest thresholds) first."""
     found = []
-    for inliers, violation in itertools.product([x / 100 for x in range(30, 96, 5)],
-                                                [0.005, 0.01, 0.02, 0.03, 0.05, 0.1, 1.0]):
-        rule = {"inlier_share_min": inliers, "free_space_violation_max": violation}
+    for inliers, margin, violation, code in itertools.product(
+            [x / 100 for x in range(0, 96, 5)], [0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3], [0.01, 0.02, 0.05, 1.0],
+            [0.8, 0.9, 1.0, 1.1, 1.2, 1.5, 2.0, 1e9]):
+        rule = {"inlier_share_min": inliers, "loss_margin_min": margin, "free_space_violation_max": violation,
+                "latent_mahalanobis_ratio_max": code}
         r = rates(fits, rule)
         if (r["bad_caught"] or 0) >= 0.8 and (r["good_flagged"] or 0) <= 0.1:
             found.append((rule, r))
-    return sorted(found, key=lambda x: (-(x[1]["bad_caught"] or 0), x[1]["good_flagged"] or 0))
+    return sorted(found, key=lambda x: (-(x[1]["bad_caught"] or 0), x[1]["good_flagged"] or 0,
+                                        x[0]["inlier_share_min"], x[0]["loss_margin_min"],
+                                        -x[0]["free_space_violation_max"], -x[0]["latent_mahalanobis_ratio_max"]))
 
 
 def main() -> None:
@@ -92,7 +96,7 @@ def main() -> None:
     if args.search:
         found = search(every)
         print(f"{len(found)} rules on the grid meet both aims" + (":" if found else ""))
-        for rule, r in found[:10]:
+        for rule, r in found[:15]:
             print(f"  {rule}: bad caught {r['bad_caught']:.2f}, good flagged {r['good_flagged']:.2f}")
 
 

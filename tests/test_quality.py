@@ -120,6 +120,13 @@ def test_loss_margin_compares_the_winner_with_the_best_other_pose():
     assert loss_margin(result) is None
 
 
+def test_an_ambiguous_pose_is_doubtful_even_when_the_points_fit():
+    fits_well = {"inlier_share": 0.95, "free_space_violation": 0.0}
+    assert flag_of(fits_well | {"loss_margin_rel": None}) == "ok"  # every surviving start agreed
+    assert flag_of(fits_well | {"loss_margin_rel": 2 * RULE["loss_margin_min"]}) == "ok"
+    assert flag_of(fits_well | {"loss_margin_rel": RULE["loss_margin_min"] / 2}) == "doubtful"
+
+
 def test_code_distance_is_relative_to_the_training_codes():
     rng = np.random.default_rng(0)
     codes = rng.normal(size=(400, 8)) * np.array([1.0, 1, 1, 1, 1, 1, 1, 0.01])

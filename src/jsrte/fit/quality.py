@@ -30,9 +30,13 @@ OTHER_POSE_SHIFT = 0.2
 MAX_POINTS = 20_000
 """At most this many surface points and as many free-space samples are evaluated (a random subset)."""
 
-RULE = {"inlier_share_min": 0.5, "free_space_violation_max": 0.05}
-"""The flag's thresholds: "doubtful" when the inlier share is below ``inlier_share_min`` or the
-free-space violation is above ``free_space_violation_max`` (docs/confidence.md)."""
+RULE = {"inlier_share_min": 0.3, "loss_margin_min": 0.12, "free_space_violation_max": 0.05,
+        "latent_mahalanobis_ratio_max": 0.9}
+"""The flag's thresholds: "doubtful" when the inlier share is below ``inlier_share_min``, or
+another pose's loss is within ``loss_margin_min`` (relative) of the winner's, or the free-space
+violation is above ``free_space_violation_max``, or the code lies further from the training
+codes than ``latent_mahalanobis_ratio_max`` times their median (chosen on a tuning set:
+docs/confidence.md)."""
 
 
 def fitted_sdf(decoder: Decoder, latent: np.ndarray, transform: Sim3, points: np.ndarray) -> np.ndarray:
@@ -139,12 +143,19 @@ def latent_distance(latent: np.ndarray, codes: np.ndarray) -> dict[str, float | 
 
 
 def flag_of(quality: dict[str, Any], rule: dict[str, float] = RULE) -> str:
-    """"doubtful" when a measure of ``quality`` breaks ``rule`` (or the surface is empty), else "ok"."""
+    """"doubtful" when a measure of ``quality`` breaks ``rule`` (or there is no surface to measure),
+    else "ok". A measure that is None (no other pose survived, no free-space samples) breaks nothing."""
     inliers = quality.get("inlier_share")
-    violation = quality.get("free_space_violation")
     if inliers is None or inliers < rule["inlier_share_min"]:
         return "doubtful"
+    margin = quality.get("loss_margin_rel")
+    if margin is not None and margin < rule["loss_margin_min"]:
+        return "doubtful"
+    violation = quality.get("free_space_violation")
     if violation is not None and violation > rule["free_space_violation_max"]:
+        return "doubtful"
+    code = quality.get("latent_mahalanobis_ratio")
+    if code is not None and code > rule["latent_mahalanobis_ratio_max"]:
         return "doubtful"
     return "ok"
 

@@ -7,7 +7,8 @@ Each CSV is the results.csv of a scan experiment run with ``--methods jsrte`` (i
 shape is below 0.7 and good when it is at least 0.85; a failed fit counts as bad and flagged. The
 flag is recomputed from the quality columns with the rule of ``jsrte.fit.quality.RULE`` (so older
 CSVs are judged by the current rule). Printed, per file and for all together: fits, bad fits,
-the share of bad fits flagged (aim >= 0.80), the share of good fits flagged (aim <= 0.10).
+the share of bad fits flagged (recall; aim >= 0.80), the share of good fits flagged (aim <= 0.10),
+and the share of flagged fits that are bad (precision).
 
 ``--search`` also lists the rules on a grid of thresholds that meet both aims on these files
 (use it on a tuning set only, never on the set the figures are reported on).
@@ -50,16 +51,18 @@ def rates(fits: list[dict], rule: dict[str, float]) -> dict[str, float | int | N
     flagged = [f["failed"] or flag_of(f["quality"], rule) == "doubtful" for f in fits]
     bad = [g for f, g in zip(fits, flagged, strict=True) if f["fscore"] < BAD]
     good = [g for f, g in zip(fits, flagged, strict=True) if f["fscore"] >= GOOD]
+    flagged_bad = sum(g and f["fscore"] < BAD for f, g in zip(fits, flagged, strict=True))
     return {"fits": len(fits), "bad": len(bad), "good": len(good), "flagged": sum(flagged),
             "bad_caught": sum(bad) / len(bad) if bad else None,
-            "good_flagged": sum(good) / len(good) if good else None}
+            "good_flagged": sum(good) / len(good) if good else None,
+            "precision": flagged_bad / sum(flagged) if any(flagged) else None}
 
 
 def _row(name: str, r: dict) -> str:
     def share(v: float | None) -> str:
         return "–" if v is None else f"{v:.2f}"
     return (f"| {name} | {r['fits']} | {r['bad']} | {r['good']} | {r['flagged']} | "
-            f"{share(r['bad_caught'])} | {share(r['good_flagged'])} |")
+            f"{share(r['bad_caught'])} | {share(r['good_flagged'])} | {share(r['precision'])} |")
 
 
 def search(fits: list[dict]) -> list[tuple[dict, dict]]:
@@ -86,8 +89,8 @@ def main() -> None:
     args = parser.parse_args()
     every: list[dict] = []
     print(f"rule: {RULE}; bad: F@5% < {BAD}, good: F@5% >= {GOOD}; aims: bad caught >= 0.80, good flagged <= 0.10")
-    print("| results | fits | bad | good | flagged | bad caught | good flagged |")
-    print("|---|---|---|---|---|---|---|")
+    print("| results | fits | bad | good | flagged | bad caught (recall) | good flagged | precision |")
+    print("|---|---|---|---|---|---|---|---|")
     for path in args.results:
         fits = read_fits(path)
         every += fits

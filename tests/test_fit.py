@@ -226,8 +226,10 @@ def test_every_advertised_mesh_format_fits_through_the_cli(tmp_path, monkeypatch
         path = tmp_path / f"box{suffix}"
         mesh.export(path)
         out = tmp_path / f"fit{suffix[1:]}"
-        code, _, err = run_cli(monkeypatch, capsys, "fit", path, "--model", model, "--preset", "smoke",
-                               "--hypotheses", "2", "--out", out, "--no-progress", "--threads", "1")
+        code, printed, err = run_cli(monkeypatch, capsys, "fit", path, "--model", model, "--preset", "smoke",
+                                     "--hypotheses", "2", "--out", out, "--no-progress", "--threads", "1")
         assert code == 0, (suffix, err)
         assert (out / "overlay.png").stat().st_size > 0
-        assert json.loads((out / "fit.json").read_text())["input"].endswith(suffix)
+        result = json.loads((out / "fit.json").read_text())
+        assert result["input"].endswith(suffix)
+        assert result["flag"] in ("ok", "doubtful") and f"flag {result['flag']}: inliers " in printed

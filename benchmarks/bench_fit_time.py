@@ -2,7 +2,7 @@
 
 Each scan is fitted in a fresh Python process, as ``jsrte fit SCAN --out DIR`` would: the
 stages (load, floor and cleaning, normals, query samples, yaw screening where the preset
-screens, solve, selection, meshing, outputs) are timed by the library's stage profile
+screens, solve, selection, meshing, quality, outputs) are timed by the library's stage profile
 (jsrte.timing), decoder evaluations are counted by the decoder itself, and "start-up" is the
 rest of the process's wall time (interpreter and imports). Prints a markdown table with the
 mean over the scans of each stage, side by side for every preset, and the whole-process
@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 STAGES = ("start-up", "load", "floor and cleaning", "normals", "query samples", "yaw screening", "solve",
-          "selection", "meshing", "outputs", "other")
+          "selection", "meshing", "quality", "outputs", "other")
 """Rows of the table, in pipeline order ("other": time inside the fit outside every named stage)."""
 
 

@@ -107,6 +107,8 @@ def test_a_corrupt_scan_fails_alone(first_run):
         assert result["truth"]["fscore"] == pytest.approx(float(row["fscore"]), abs=1e-4)
         assert result["input"] == str(folder / f"{stem}.ply") and result["preset"] == "smoke"
         assert float(row["scale"]) == pytest.approx(result["scale"], rel=1e-4)
+        assert row["flag"] == result["flag"] and row["flag"] in ("ok", "doubtful")
+        assert float(row["inlier_share"]) == pytest.approx(result["quality"]["inlier_share"], abs=1e-4)
 
 
 def test_a_rerun_fits_only_what_is_left(first_run, model_file, scan_pool):

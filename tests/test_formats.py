@@ -70,12 +70,13 @@ def test_every_advertised_input_format_fits_through_the_cli(tmp_path, monkeypatc
 
     for suffix, path in inputs.items():
         out = tmp_path / f"fit{suffix[1:]}"
-        code, _, err = run_cli(monkeypatch, capsys, "fit", path, "--model", model, "--preset", "smoke",
-                               "--hypotheses", "2", "--out", out, "--no-progress", "--threads", "1")
+        code, printed, err = run_cli(monkeypatch, capsys, "fit", path, "--model", model, "--preset", "smoke",
+                                     "--hypotheses", "2", "--out", out, "--no-progress", "--threads", "1")
         assert code == 0, (suffix, err)
         assert (out / "overlay.png").stat().st_size > 0, suffix
         record = json.loads((out / "fit.json").read_text())
         assert record["input"].endswith(suffix)
+        assert record["flag"] in ("ok", "doubtful") and f"flag {record['flag']}: inliers " in printed
         kind = record["query"]["input"]
         assert kind == {"scan": "scan", "mesh": "mesh", "npz": "sdf-samples"}[input_kind(path)], (suffix, kind)
         up = np.asarray(record["up"] or (0.0, 1.0, 0.0))

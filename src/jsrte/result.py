@@ -61,6 +61,10 @@ class FitResult:
     query_points: np.ndarray | None = None
     """(n, 3) the query's surface points in scan units (a scan's object points), for overlays;
     not part of ``to_json``."""
+    quality: dict[str, Any] = field(default_factory=dict)
+    """Measures of how well the fit explains the query (jsrte.fit.quality.MEASURES); empty if not assessed."""
+    flag: str | None = None
+    """"ok" or "doubtful" (jsrte.fit.quality.flag_of); None if not assessed."""
 
     @property
     def mesh(self) -> trimesh.Trimesh | None:
@@ -85,7 +89,13 @@ class FitResult:
             "loss": self.loss,
             "criterion": self.criterion,
             "empty_surface": self.mesh_canonical is None,
+            **({"flag": self.flag, "quality": _finite_or_none(self.quality)} if self.flag is not None else {}),
             "hypotheses": [h.to_json() for h in self.hypotheses],
             "timing_s": self.timing,
             **self.info,
         }
+
+
+def _finite_or_none(values: dict[str, Any]) -> dict[str, Any]:
+    """``values`` with NaN and infinite floats as None (JSON has no NaN)."""
+    return {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in values.items()}

@@ -33,10 +33,11 @@ from jsrte.fit.outputs import RESULT_NAME
 from jsrte.options import FitOptions
 
 SUMMARY_NAME = "summary.csv"
-COLUMNS = ("scan", "result", "status", "error", "fscore", "scale", "time_s", "model", "model_sha256", "preset")
+COLUMNS = ("scan", "result", "status", "error", "fscore", "scale", "time_s", "flag", "inlier_share", "model",
+           "model_sha256", "preset")
 """summary.csv: the scan's path, its result folder, ok/failed, the error, F@5% against the truth
-(virtual scans whose JSON names a findable mesh; else empty), the estimated scale, seconds, and
-the model (name, SHA-256 of its file) and preset of the run."""
+(virtual scans whose JSON names a findable mesh; else empty), the estimated scale, seconds, the
+flag and inlier share (docs/confidence.md), and the model (name, SHA-256 of its file) and preset of the run."""
 LOCK_NAME = ".fit-many.lock"
 
 
@@ -225,7 +226,8 @@ def _done_row(scan: Path, folder: Path) -> dict[str, Any] | None:
         truth = result.get("truth") or {}
         seconds = result.get("wall_time_s", (result.get("timing_s") or {}).get("total", 0.0))
         return summary_row(str(scan), folder.name, "ok", fscore=truth.get("fscore"), scale=result["scale"],
-                           seconds=float(seconds))
+                           seconds=float(seconds), flag=result.get("flag"),
+                           inlier_share=(result.get("quality") or {}).get("inlier_share"))
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None  # not a result after all: fit it again
 

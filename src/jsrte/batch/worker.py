@@ -93,11 +93,13 @@ def failed_outcome(job: ScanJob, error: str, seconds: float = 0.0) -> JobOutcome
 
 
 def summary_row(scan: str, name: str, status: str, *, error: str = "", fscore: float | None = None,
-                scale: float | None = None, seconds: float = 0.0) -> dict[str, Any]:
+                scale: float | None = None, seconds: float = 0.0, flag: str | None = None,
+                inlier_share: float | None = None) -> dict[str, Any]:
     """A row of summary.csv (empty cells for what is unknown)."""
     return {"scan": scan, "result": name, "status": status, "error": error,
             "fscore": "" if fscore is None else round(float(fscore), 4),
-            "scale": "" if scale is None else round(float(scale), 5), "time_s": round(seconds, 2)}
+            "scale": "" if scale is None else round(float(scale), 5), "time_s": round(seconds, 2),
+            "flag": flag or "", "inlier_share": "" if inlier_share is None else round(float(inlier_share), 4)}
 
 
 # -- worker set-up --------------------------------------------------------------------------
@@ -186,7 +188,8 @@ def _fit(job: ScanJob, model: Any, tmp: Path, started: float) -> JobOutcome:
                                 extra={"input": job.scan, "truth": scores, "wall_time_s": round(seconds, 2)})
     files = {p.name: p.read_bytes() for p in written}
     row = summary_row(job.scan, job.name, "ok", error=note, scale=result.transform.s, seconds=seconds,
-                      fscore=None if scores is None else scores["fscore"])
+                      fscore=None if scores is None else scores["fscore"], flag=result.flag,
+                      inlier_share=result.quality.get("inlier_share"))
     return JobOutcome(job.index, job.name, row, files)
 
 

@@ -87,7 +87,21 @@ def _report(result, out: Path) -> None:  # noqa: ANN001
         typer.echo(f"class {choice['chosen']}{margin}")
     typer.echo(f"winner by {result.criterion['name']}: {result.criterion['value']:.4f}; "
                f"time {result.timing['total']:.1f} s")
+    if result.flag is not None:
+        typer.echo(_quality_line(result.flag, result.quality))
     typer.echo(f"wrote {out}/fit.json, shape.ply, shape_canonical.ply, overlay.png")
+
+
+def _quality_line(flag: str, quality: dict) -> str:
+    """One line: the flag and the measures it rests on (docs/confidence.md)."""
+    def number(key: str, text: str) -> str:
+        value = quality.get(key)
+        return f"{text} –" if value is None else f"{text} {value:.2f}"
+
+    return (f"flag {flag}: " + number("inlier_share", "inliers") + ", "
+            + number("free_space_violation", "free-space violation") + ", "
+            + number("loss_margin_rel", "loss margin") + ", "
+            + number("latent_mahalanobis_ratio", "code distance") + " (docs/confidence.md)")
 
 
 @app.command("models")

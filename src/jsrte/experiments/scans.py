@@ -211,6 +211,7 @@ class _CaseContext:
     def run(self, case: ScanCase) -> tuple[list[dict], dict]:
         """Rows (one per method) and the results by method, for one scan."""
         from jsrte.experiments.truth import score_against_truth
+        from jsrte.fit.quality import quality_columns
 
         scan_points = _scan_points(case)
         rows, results = [], {}
@@ -227,6 +228,7 @@ class _CaseContext:
             if result is not None:
                 results[method] = result
                 row.update(_scores(result, case, scan_points, self.seed, score_against_truth))
+                row.update(quality_columns(result))
                 if "class" in result.info:
                     row.update(fitted_class=result.info["class"]["chosen"],
                                class_margin=result.info["class"]["margin"])

@@ -83,6 +83,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     if inits is None:
         inits = initial_hypotheses(query, class_geometry(model), settings, n_hypotheses=n_hypotheses)
     n_query = len(query.sdf)
+    observed = query
     clamp = loss_clamp(settings, inits)
     if settings.below_floor_samples and clamp is not None:
         query = with_below_floor_samples(query, settings.below_floor_samples, clamp=clamp,
@@ -101,7 +102,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     timing = {"optimize": round(t_opt, 2), "select": round(t_sel, 2),
               "extract": round(time.perf_counter() - started - t_opt - t_sel, 2),
               "total": round(time.perf_counter() - started, 2)}
-    return FitResult(
+    fitted = FitResult(
         method="jsrte", transform=result.batch.transform(winner), latent=latent, mesh_canonical=mesh,
         loss=float(result.losses[winner]), criterion=criterion, angles=result.batch.angles(winner),
         hypotheses=reports, timing=timing,
@@ -111,6 +112,20 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
               "failed_hypotheses": {str(i): why for i, why in sorted(result.failed.items())},
               "winner_hypothesis": int(result.survivors[winner])},
     )
+    _assess(model, observed, fitted, seed)
+    return fitted
+
+
+def _assess(model: DeepSdfModel, query: SdfQuery, result: FitResult, seed: int) -> None:
+    """Fill ``result.quality`` and ``result.flag`` (jsrte.fit.quality) from ``query``'s own samples."""
+    from jsrte.fit.quality import assess, flag_of
+
+    started = time.perf_counter()
+    with stage("quality"):
+        result.quality = assess(model.decoder, result, surface=query.surface, points=query.points, sdf=query.sdf,
+                                codes=model.codes.detach().cpu().numpy(), seed=seed)
+    result.flag = flag_of(result.quality)
+    result.timing["quality"] = round(time.perf_counter() - started, 2)
 
 
 def _check_finite(result: Optimized) -> None:

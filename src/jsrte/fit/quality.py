@@ -1,0 +1,190 @@
+"""How far to trust a fit: measures computed after the fit, and a flag ("ok" / "doubtful").
+
+Every measure costs at most one decoder pass over the query's points (no extra optimization).
+Distances are in scan units (metres for scans); "relative" ones are divided by the fit's scale
+``s``, the radius of the fitted shape's bounding sphere (the decoder's shapes fill the unit
+sphere). docs/confidence.md gives the rule's precision and recall and how it was chosen.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from jsrte.geometry.sim3 import Sim3, rotation_angle_deg
+from jsrte.model.decoder import Decoder, decoder_device
+from jsrte.result import FitResult, HypothesisReport
+
+INLIER_FRACTION = 0.02
+"""A query point is an inlier when |fitted SDF| < this fraction of the fit's scale (1 cm on a chair)."""
+FREE_SPACE_MIN_M = 0.03
+"""Query samples whose SDF is at least this (scan units) count as observed free space."""
+TRIM = 0.9
+"""The robust mean |SDF| averages the smallest 90% (a few outliers or clutter points do not rule it)."""
+OTHER_POSE_DEG = 30.0
+"""A hypothesis is at a different pose than the winner when its rotation differs by more than
+this, or its centre by more than ``OTHER_POSE_SHIFT`` times the scale."""
+OTHER_POSE_SHIFT = 0.2
+MAX_POINTS = 20_000
+"""At most this many surface points and as many free-space samples are evaluated (a random subset)."""
+
+RULE = {"inlier_share_min": 0.3, "loss_margin_min": 0.12, "free_space_violation_max": 0.05,
+        "latent_mahalanobis_ratio_max": 0.9}
+"""The flag's thresholds: "doubtful" when the inlier share is below ``inlier_share_min``, or
+another pose's loss is within ``loss_margin_min`` (relative) of the winner's, or the free-space
+violation is above ``free_space_violation_max``, or the code lies further from the training
+codes than ``latent_mahalanobis_ratio_max`` times their median (chosen on a tuning set:
+docs/confidence.md)."""
+
+
+def fitted_sdf(decoder: Decoder, latent: np.ndarray, transform: Sim3, points: np.ndarray) -> np.ndarray:
+    """The fitted shape's SDF (n,) at ``points`` (n, 3), scan units: s·f(T⁻¹x, z), negative inside
+    (saturates at the decoder's clamp times s far from the surface)."""
+    device = decoder_device(decoder)
+    canonical = transform.inverse().apply(points)
+    with torch.no_grad():
+        x = torch.as_tensor(canonical, dtype=torch.float32, device=device)
+        z = torch.as_tensor(np.asarray(latent), dtype=torch.float32, device=device)
+        values = decoder(x, z) if len(x) else torch.zeros(0)
+    return transform.s * values.detach().cpu().numpy().astype(np.float64)
+
+
+def assess(decoder: Decoder, result: FitResult, *, surface: np.ndarray, points: np.ndarray, sdf: np.ndarray,
+           codes: np.ndarray | None = None, seed: int = 0) -> dict[str, Any]:
+    """The quality block of a fit.
+
+    Parameters
+    ----------
+    decoder : the model's decoder
+    result : the fit (its ``latent``, ``transform``, ``loss`` and ``hypotheses``)
+    surface : (k, 3) the object's points (scan units)
+    points, sdf : (m, 3), (m,) the query's SDF samples (scan units); those with sdf >=
+        ``FREE_SPACE_MIN_M`` are observed free space
+    codes : (n, d) the model's training codes, for the code's distance under the prior
+
+    Returns
+    -------
+    dict of JSON-ready numbers (None where a measure does not apply), see ``MEASURES``
+    """
+    rng = np.random.default_rng(seed)
+    s = result.transform.s
+    out: dict[str, Any] = {"scale_m": s}
+    if result.latent is None:
+        return out
+    surface = _subset(np.asarray(surface, float), rng)
+    distance = np.abs(fitted_sdf(decoder, result.latent, result.transform, surface))
+    out.update(_point_measures(distance, s))
+    free = np.asarray(points, float)[np.asarray(sdf) >= FREE_SPACE_MIN_M]
+    free = _subset(free, rng)
+    if len(free):
+        inside = fitted_sdf(decoder, result.latent, result.transform, free) < 0
+        out["free_space_violation"] = float(inside.mean())
+    else:
+        out["free_space_violation"] = None
+    out["free_space_samples"] = len(free)
+    out["loss_margin_rel"] = loss_margin(result)
+    if codes is not None:
+        out.update(latent_distance(result.latent, codes))
+    return out
+
+
+def _subset(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    if len(points) <= MAX_POINTS:
+        return points
+    return points[rng.choice(len(points), MAX_POINTS, replace=False)]
+
+
+def _point_measures(distance: np.ndarray, scale: float) -> dict[str, Any]:
+    """Inlier share and robust mean |SDF| of the object's points, given their |SDF| (k,)."""
+    if not len(distance):
+        return {"points": 0, "inlier_share": None, "mean_abs_sdf_m": None, "mean_abs_sdf_rel": None}
+    kept = np.sort(distance)[: max(1, int(np.ceil(TRIM * len(distance))))]
+    robust = float(kept.mean())
+    return {"points": len(distance), "inlier_share": float((distance < INLIER_FRACTION * scale).mean()),
+            "mean_abs_sdf_m": robust, "mean_abs_sdf_rel": robust / scale}
+
+
+def loss_margin(result: FitResult) -> float | None:
+    """(loss of the best surviving hypothesis at another pose − the winner's loss) / the winner's
+    loss; None without such a hypothesis. Small or negative: another pose explains the data as well."""
+    winner = result.transform
+    others = [h.loss for h in result.hypotheses if _other_pose(h, winner)]
+    if not others or not np.isfinite(result.loss) or result.loss <= 0:
+        return None
+    return float((min(others) - result.loss) / result.loss)
+
+
+def _other_pose(h: HypothesisReport, winner: Sim3) -> bool:
+    if h.pruned or h.transform is None or not np.isfinite(h.loss):
+        return False
+    turned = rotation_angle_deg(h.transform.R, winner.R) > OTHER_POSE_DEG
+    shifted = np.linalg.norm(h.transform.t - winner.t) > OTHER_POSE_SHIFT * winner.s
+    return bool(turned or shifted)
+
+
+def latent_distance(latent: np.ndarray, codes: np.ndarray) -> dict[str, float | None]:
+    """The code's distance from the training codes, each relative to the training codes' own median:
+    ``latent_norm_ratio`` = ‖z‖ / median ‖z_train‖; ``latent_mahalanobis_ratio`` = Mahalanobis
+    distance of z / the median one of the training codes (slightly shrunk covariance). 1 is typical;
+    None where the training codes are all zero (norm) or fewer than two (Mahalanobis)."""
+    from jsrte.fit.params import LatentPrior
+
+    codes = np.asarray(codes, dtype=np.float64)
+    z = np.asarray(latent, dtype=np.float64)
+    typical = float(np.median(np.linalg.norm(codes, axis=1)))
+    out: dict[str, float | None] = {"latent_norm_ratio": float(np.linalg.norm(z) / typical) if typical > 1e-9 else None}
+    if len(codes) > 1:
+        prior = LatentPrior.of_codes(codes, shrinkage=0.01)
+        train = np.linalg.norm(np.linalg.solve(prior.factor, (codes - prior.mean).T), axis=0)
+        out["latent_mahalanobis_ratio"] = float(np.linalg.norm(prior.whiten(z)) / max(np.median(train), 1e-12))
+    return out
+
+
+def flag_of(quality: dict[str, Any], rule: dict[str, float] = RULE) -> str:
+    """"doubtful" when a measure of ``quality`` breaks ``rule`` (or there is no surface to measure),
+    else "ok". A measure that is None (no other pose survived, no free-space samples) breaks nothing."""
+    inliers = quality.get("inlier_share")
+    if inliers is None or inliers < rule["inlier_share_min"]:
+        return "doubtful"
+    margin = quality.get("loss_margin_rel")
+    if margin is not None and margin < rule["loss_margin_min"]:
+        return "doubtful"
+    violation = quality.get("free_space_violation")
+    if violation is not None and violation > rule["free_space_violation_max"]:
+        return "doubtful"
+    code = quality.get("latent_mahalanobis_ratio")
+    if code is not None and code > rule["latent_mahalanobis_ratio_max"]:
+        return "doubtful"
+    return "ok"
+
+
+MEASURES = {
+    "scale_m": "the fit's scale s: radius of the fitted shape's bounding sphere (scan units)",
+    "points": "object points evaluated",
+    "inlier_share": f"share of the object's points with |fitted SDF| < {INLIER_FRACTION} s",
+    "mean_abs_sdf_m": f"mean |fitted SDF| of the object's points, the smallest {TRIM:.0%} (scan units)",
+    "mean_abs_sdf_rel": "mean_abs_sdf_m / s",
+    "free_space_violation": f"share of observed free-space samples (query SDF >= {FREE_SPACE_MIN_M} m) "
+                            "that the fitted shape holds inside",
+    "free_space_samples": "free-space samples evaluated",
+    "loss_margin_rel": "(best loss at another pose - winner's loss) / winner's loss",
+    "latent_norm_ratio": "|z| / median |z| of the training codes",
+    "latent_mahalanobis_ratio": "Mahalanobis distance of z / median one of the training codes",
+}
+"""Each measure of the quality block and its unit."""
+
+
+def quality_columns(result: FitResult) -> dict[str, Any]:
+    """A fit's flag and quality block as flat table columns (``flag``, ``quality_<measure>``); empty
+    for a fit that was not assessed (baselines)."""
+    if result.flag is None:
+        return {}
+    return {"flag": result.flag} | {f"quality_{k}": _rounded(v) for k, v in result.quality.items()}
+
+
+def _rounded(value: Any) -> Any:
+    if isinstance(value, float):
+        return round(value, 5) if np.isfinite(value) else None
+    return value

@@ -14,7 +14,7 @@ from jsrte.timing import timed_stage
 SCENE_NAME = "scene.json"
 OBJECTS_DIR = "objects"
 OVERLAY_POINTS = 30_000
-"""At most this many scan points are drawn in the overlay (a random subset)."""
+"""At most this many object points are drawn in the overlay (a random subset)."""
 
 CLASS_COLORS = {"chair": (214, 69, 65), "table": (52, 120, 198), "sofa": (67, 160, 71), "bed": (243, 156, 18)}
 """RGB of each shipped class in scene.ply; other classes take ``OTHER_COLORS`` in turn."""
@@ -42,7 +42,7 @@ def write_scene_outputs(scene: SceneResult, out_dir: Path, *, extra: dict | None
         save_mesh(mesh, out_dir / "scene.ply")
         written.append(out_dir / "scene.ply")
     up = (0.0, 1.0, 0.0) if scene.up is None else tuple(float(v) for v in scene.up)
-    points = scene.scan_points
+    points = np.concatenate([o.points for o in scene.objects]) if scene.objects else scene.scan_points
     if len(points) > OVERLAY_POINTS:
         points = points[np.random.default_rng(0).choice(len(points), OVERLAY_POINTS, replace=False)]
     render_overlay(mesh, points, out_dir / "overlay.png", up=up,

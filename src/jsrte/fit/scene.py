@@ -73,7 +73,7 @@ class SceneObject:
             entry.update(transform=r.transform.to_dict(),
                          latent=None if r.latent is None else np.asarray(r.latent, float).round(6).tolist(),
                          fitted_centre=None if mesh is None else _box_centre(np.asarray(mesh.vertices)),
-                         flag=r.flag, quality=json_ready(r.quality), loss=r.loss,
+                         flag=r.flag, quality=json_ready(r.quality), loss=json_ready({"loss": r.loss})["loss"],
                          time_s=r.timing.get("total"))
         return entry
 

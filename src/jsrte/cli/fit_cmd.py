@@ -17,8 +17,11 @@ from jsrte.errors import JsrteError
 def fit_command(
     scan: Path = typer.Argument(..., help="Scan (PLY/PCD/XYZ, metres), complete mesh (OBJ/OFF/STL/GLB) "
                                           "or SDF samples (.npz)."),
-    out: Path = typer.Option(..., "--out", help="Output folder (fit.json, shape.ply, overlay.png)."),
-    model: str = opt.MODEL,
+    out: Path = typer.Option(..., "--out", help="Output folder (fit.json, shape.ply, overlay.png; with --scene: "
+                                                "scene.json, scene.ply, overlay.png, objects/NN/)."),
+    model: str = typer.Option(None, help=opt.MODEL.help + " Default: chair; auto with --scene."),
+    scene: bool = typer.Option(False, "--scene", help="Fit every object standing on the floor, each with its "
+                                                      "class (docs/clutter.md)."),
     preset: str = opt.PRESET, up: str = opt.UP, viewpoint: list[str] = opt.VIEWPOINT,
     line_of_sight: bool = opt.LINE_OF_SIGHT, free_axis: bool = opt.FREE_AXIS, at: str = opt.AT,
     hypotheses: int = opt.HYPOTHESES, seed: int = opt.SEED, device: str = opt.DEVICE,
@@ -38,9 +41,13 @@ def fit_command(
     check_threads(threads)
     if not scan.exists():
         raise JsrteError("no such file", scan)
+    if scene:
+        _fit_scene(scan, out, model=model or "auto", options=options, overwrite=overwrite, progress=progress,
+                   threads=threads)
+        return
     check_out_folder(out, marker=RESULT_NAME, overwrite=overwrite)
     set_threads(threads)
-    result = fit(scan, model=model, options=options, progress=progress)
+    result = fit(scan, model=model or "chair", options=options, progress=progress)
     with output_dir(out, overwrite=overwrite, marker=RESULT_NAME) as folder:
         write_fit_outputs(result, folder, query_points=result.query_points, up=result.info.get("up"),
                           extra={"input": str(scan)})
@@ -73,6 +80,42 @@ def prepare_command(
     save_query(query, out)
     typer.echo(f"wrote {out}: {len(query.sdf)} SDF samples, {len(query.surface)} surface points"
                + ("" if query.up is None else f", up {np.round(query.up, 3).tolist()}"))
+
+
+def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite: bool, progress: bool,
+               threads: int) -> None:
+    """``jsrte fit --scene``: every object of the scan, one line each, then the files."""
+    from jsrte.atomic import output_dir
+    from jsrte.fit.scene import fit_scene
+    from jsrte.fit.scene_outputs import SCENE_NAME, write_scene_outputs
+
+    if options.at is not None:
+        raise JsrteError("--scene fits every object; --at picks one (give one or the other)")
+    check_out_folder(out, marker=SCENE_NAME, overwrite=overwrite)
+    set_threads(threads)
+    scene = fit_scene(scan, model=model, options=options, progress=progress)
+    with output_dir(out, overwrite=overwrite, marker=SCENE_NAME) as folder:
+        write_scene_outputs(scene, folder, extra={"input": str(scan)})
+    for obj in scene.objects:
+        typer.echo(_scene_line(obj))
+    for skip in scene.skipped:
+        typer.echo(f"skipped candidate {skip['candidate']}: {skip['points']} points, {skip['reason']}")
+    typer.echo(f"{len(scene.fitted)} object(s) fitted, {len(scene.objects) - len(scene.fitted)} failed, "
+               f"{len(scene.skipped)} candidate(s) skipped; wrote {out}/scene.json, scene.ply, overlay.png, "
+               f"objects/NN/")
+
+
+def _scene_line(obj) -> str:  # noqa: ANN001
+    """One line for an object of a scene: class, flag, scale, centre."""
+    import numpy as np
+
+    if obj.result is None:
+        return f"object {obj.index:02d}: failed ({obj.reason}); {len(obj.points)} points"
+    margin = (obj.class_choice or {}).get("margin")
+    margin_text = "" if margin is None else f" (margin {margin:.3f})"
+    return (f"object {obj.index:02d}: {obj.model}{margin_text}, flag {obj.result.flag}, "
+            f"scale {obj.result.transform.s:.3f}, at {np.round(obj.centre, 2).tolist()}, "
+            f"{len(obj.points)} points")
 
 
 def _report(result, out: Path) -> None:  # noqa: ANN001

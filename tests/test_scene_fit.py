@@ -1,0 +1,107 @@
+"""Whole scenes: every object of a room found, its class chosen and fitted; one failure stops nothing."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cli_runner import run_cli
+from jsrte.errors import JsrteError
+from jsrte.scans.scene import SceneSettings, scan_room, write_room
+from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
+from test_clutter import table
+
+ROOM = SceneSettings(scanner=replace(SceneSettings().scanner, width=240, height=180), walls=(1, 1),
+                     wall_gap_m=(0.2, 0.3), first_neighbour_gap_m=(0.3, 0.4), mixed_pixel_fraction=0.1)
+"""A wall, a held-out chair and a table well apart from it (one cluster each)."""
+
+
+@pytest.fixture(scope="module")
+def room_scan(tmp_path_factory):
+    chair = generate_shape("chair", shape_seed(EVAL_SET_SEED, 100)).mesh
+    room = scan_room(chair, rng=np.random.default_rng(3), settings=ROOM, target_kind="chair",
+                     others=[("table", table(), "test")])
+    return write_room(room, tmp_path_factory.mktemp("room"), seed=3)
+
+
+def true_objects(scan_path) -> list[tuple[str, np.ndarray, float]]:
+    """(class, centre (3,), radius m) of every object of the room, from its scene.json and meshes."""
+    import trimesh
+
+    from jsrte.geometry.sim3 import Sim3
+
+    truth = json.loads((scan_path.parent / "scene.json").read_text())
+    out = []
+    for entry in truth["objects"]:
+        mesh = trimesh.load(scan_path.parent / entry["mesh"], process=False)
+        pose = Sim3.from_dict(entry["scan_from_mesh"])
+        vertices = pose.apply(np.asarray(mesh.vertices))
+        centre = (vertices.min(0) + vertices.max(0)) / 2.0
+        out.append((entry["class"], centre, float(np.linalg.norm(vertices - centre, axis=1).max())))
+    return out
+
+
+@pytest.mark.slow
+def test_scene_fits_every_object_near_its_truth(room_scan, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "scene"
+    code, text, err = run_cli(monkeypatch, capsys, "fit", room_scan, "--scene", "--model", "chair,table", "--out", out,
+                              "--threads", "1", "--no-progress")
+    assert code == 0, err
+    record = json.loads((out / "scene.json").read_text())
+    fitted = [o for o in record["objects"] if o["status"] == "ok"]
+    assert len(fitted) == 2 and record["counts"]["fitted"] == 2
+    for kind, centre, radius in true_objects(room_scan):
+        near = [o for o in fitted if np.linalg.norm(np.array(o["fitted_centre"]) - centre) < 0.3 * radius]
+        assert len(near) == 1, (kind, centre, [o["fitted_centre"] for o in fitted])
+        assert near[0]["class"] == kind
+        assert (out / near[0]["folder"] / "fit.json").is_file()
+    import trimesh
+
+    mesh = trimesh.load(out / "scene.ply", process=False)
+    colours = np.unique(np.asarray(mesh.visual.vertex_colors)[:, :3], axis=0)
+    assert len(colours) == 2 and (out / "overlay.png").is_file()
+    assert text.count("\nobject ") + text.startswith("object ") == 2 and "2 object(s) fitted" in text
+
+
+def test_a_failing_object_is_recorded_and_the_others_go_on(room_scan, monkeypatch):
+    from jsrte.fit import scene as scene_module
+    from jsrte.fit import solve
+
+    calls = []
+    original = solve.fit_query
+
+    def fit_or_fail(model, query, settings, **kw):
+        calls.append(len(query.surface))
+        if len(calls) == 1:
+            raise JsrteError("too few points to fit")
+        return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
+
+    monkeypatch.setattr(solve, "fit_query", fit_or_fail)
+    scene = scene_module.fit_scene(room_scan, model="chair", preset="smoke")
+    assert len(calls) == 2 and len(scene.objects) == 2
+    failed, ok = scene.objects
+    assert failed.status == "failed" and "too few points" in failed.reason and failed.result is None
+    assert ok.status == "ok" and ok.result is not None and ok.result.flag in ("ok", "doubtful")
+    record = scene.to_json()
+    assert [o["status"] for o in record["objects"]] == ["failed", "ok"]
+    assert record["objects"][0]["points"] >= calls[0] > 0  # the candidate's points, before cleaning
+
+
+def test_scene_with_at_is_a_one_line_error(room_scan, tmp_path, monkeypatch, capsys):
+    code, _, err = run_cli(monkeypatch, capsys, "fit", room_scan, "--scene", "--at", "0,0,0", "--out", tmp_path / "o")
+    assert code != 0 and "--at" in err and err.strip().count("\n") == 0
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_room_without_objects_says_what_was_removed(tmp_path, monkeypatch, capsys):
+    empty = replace(ROOM, others=(0, 0))
+    flat = generate_shape("chair", shape_seed(EVAL_SET_SEED, 100)).mesh
+    flat.apply_scale([1.0, 0.02, 1.0])  # a mat on the floor: too flat to be an object
+    room = scan_room(flat, rng=np.random.default_rng(1), settings=empty, target_kind="mat")
+    scan = write_room(room, tmp_path / "room", seed=1)
+    code, _, err = run_cli(monkeypatch, capsys, "fit", scan, "--scene", "--out", tmp_path / "o")
+    assert code != 0 and "no object left after segmentation" in err and "wall" in err
+    assert err.strip().count("\n") == 0 and not (tmp_path / "o").exists()

@@ -14,6 +14,7 @@ def test_vectors_of_any_kind_become_checked_tuples():
     options = FitOptions(up=np.array([0, 0, 2]), at=[1, 2, 3], viewpoints=np.zeros((2, 3)), device=None)
     assert options.up == (0.0, 0.0, 2.0) and options.at == (1.0, 2.0, 3.0)
     assert options.viewpoints == ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert FitOptions(hypotheses=np.int64(4)).hypotheses == 4
     assert hash(options)  # frozen and hashable: it travels to fit-many's workers as it is
     for bad, message in [({"up": (0, 0, 0)}, "non-zero"), ({"at": (1, 2)}, "three finite"),
                          ({"viewpoints": [(0, 0, np.nan)]}, "three finite"), ({"hypotheses": 0}, "positive"),

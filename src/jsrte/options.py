@@ -8,6 +8,7 @@ they limit their threads and start PyTorch.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, fields, replace
 from typing import TYPE_CHECKING
@@ -64,8 +65,10 @@ class FitOptions:
         if self.viewpoints is not None:
             points = tuple(_vector(p, "viewpoints") for p in _rows(self.viewpoints))
             object.__setattr__(self, "viewpoints", points or None)
-        if self.hypotheses is not None and not (isinstance(self.hypotheses, int) and self.hypotheses >= 1):
-            raise JsrteError(f"hypotheses must be a positive whole number, got {self.hypotheses}")
+        if self.hypotheses is not None:
+            if not (isinstance(self.hypotheses, numbers.Integral) and self.hypotheses >= 1):
+                raise JsrteError(f"hypotheses must be a positive whole number, got {self.hypotheses}")
+            object.__setattr__(self, "hypotheses", int(self.hypotheses))  # a NumPy integer too
         if self.device is not None:
             object.__setattr__(self, "device", str(self.device))  # a torch.device is welcome too
         if self.preset not in PRESETS:

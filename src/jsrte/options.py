@@ -55,7 +55,8 @@ class FitOptions:
     units_check: bool = True
 
     def __post_init__(self) -> None:
-        """Vectors (any sequence or array) become tuples of floats, checked finite."""
+        """Check every option once: vectors (any sequence or array) become finite float tuples,
+        the number of starts a positive int, the device a string, the preset a known one."""
         for name in ("up", "at"):
             value = getattr(self, name)
             if value is not None:

@@ -37,11 +37,9 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
         named one runs on the CPU)
     """
     from jsrte.formats import input_kind
-    from jsrte.model.decoder import decoder_device
     from jsrte.timing import stage
 
     options = (options or FitOptions()).changed(**changes)
-    settings = options.settings()
     class_choice = None
     with stage("load"):
         models = load_models(model, options.device)
@@ -61,13 +59,23 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
 
             choice = choose_class(sdf_query, models, seed=options.seed)
             loaded, class_choice = choice.model, choice.class_json()
-    result = fit_query(loaded, sdf_query, settings.fit, n_hypotheses=options.hypotheses, seed=options.seed,
+    return fit_recorded(loaded, sdf_query, options, class_choice=class_choice, progress=progress)
+
+
+def fit_recorded(model: DeepSdfModel, query: SdfQuery, options: FitOptions, *, class_choice: dict | None = None,
+                 progress: bool = False) -> FitResult:
+    """``fit_query`` with ``options``, the result carrying what fit.json records of how it was made
+    (options, preset, model and its hash, the query's record, device, up, the class choice if any)."""
+    from jsrte.model.decoder import decoder_device
+
+    settings = options.settings()
+    result = fit_query(model, query, settings.fit, n_hypotheses=options.hypotheses, seed=options.seed,
                        progress=progress)
-    result.query_points = sdf_query.surface
-    result.info.update(options=options.record(), preset=settings.name, model=loaded.name,
-                       model_sha256=loaded.meta.get("sha256"), query=sdf_query.info,
-                       device=str(decoder_device(loaded.decoder)),
-                       up=None if sdf_query.up is None else np.asarray(sdf_query.up).tolist())
+    result.query_points = query.surface
+    result.info.update(options=options.record(), preset=settings.name, model=model.name,
+                       model_sha256=model.meta.get("sha256"), query=query.info,
+                       device=str(decoder_device(model.decoder)),
+                       up=None if query.up is None else np.asarray(query.up).tolist())
     if class_choice is not None:
         result.info["class"] = class_choice
     return result
@@ -158,4 +166,5 @@ def _shape_if_scan(query: str | Path | SdfQuery, model: DeepSdfModel) -> object:
     return class_shape(model) if input_kind(query) == "scan" else None
 
 
-__all__ = ["FitOptions", "FitResult", "SdfQuery", "fit", "fit_query", "fit_query_of", "load_models", "model_names"]
+__all__ = ["FitOptions", "FitResult", "SdfQuery", "fit", "fit_query", "fit_query_of", "fit_recorded", "load_models",
+           "model_names"]

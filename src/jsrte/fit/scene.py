@@ -174,9 +174,8 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
 def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptions, screen: ScreenSettings,
                 progress: bool) -> None:
     """Choose ``obj``'s class and fit it (fills ``obj.model``, ``class_choice``, ``result``)."""
+    from jsrte.fit import fit_recorded
     from jsrte.fit.screen import choose_class
-    from jsrte.fit.solve import fit_query
-    from jsrte.model.decoder import decoder_device
 
     query = cands.query(obj.candidate, rng=np.random.default_rng(options.seed))
     query.info["segmentation"] |= {"chosen": obj.candidate, "chosen_by": "scene"}
@@ -186,16 +185,7 @@ def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptio
         obj.model = next(name for name, m in models.items() if m is model)
     else:
         (obj.model, model), = models.items()
-    result = fit_query(model, query, options.settings().fit, n_hypotheses=options.hypotheses, seed=options.seed,
-                       progress=progress)
-    result.query_points = query.surface
-    result.info.update(options=options.record(), preset=options.preset, model=model.name,
-                       model_sha256=model.meta.get("sha256"), query=query.info,
-                       device=str(decoder_device(model.decoder)),
-                       up=None if query.up is None else np.asarray(query.up).tolist())
-    if obj.class_choice is not None:
-        result.info["class"] = obj.class_choice
-    obj.result = result
+    obj.result = fit_recorded(model, query, options, class_choice=obj.class_choice, progress=progress)
 
 
 def _box_centre(points: np.ndarray) -> list[float]:

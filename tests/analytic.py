@@ -106,3 +106,27 @@ def octahedron_query(radius: float = 0.5, n: int = 3000, seed: int = 0):
     sdf = np.abs(points).sum(1) - radius
     surface = points[np.abs(sdf) < 0.05]
     return SdfQuery(points, sdf, surface)
+
+
+def make_query(mesh, truth, up, rng):
+    """SDF samples of ``mesh`` placed by ``truth`` (near the surface and 15 cm out), floor under it if ``up``."""
+    from jsrte.fit.query import SdfQuery
+    from jsrte.sdf.mesh_sdf import signed_distance
+
+    placed = mesh.copy()
+    placed.vertices = truth.apply(mesh.vertices)
+    surface = np.asarray(placed.sample(3000, seed=1))
+    points = np.concatenate([surface + rng.normal(size=surface.shape) * 0.02,
+                             surface + rng.normal(size=surface.shape) * 0.15])
+    floor = None if up is None else float((placed.vertices @ up).min())
+    return SdfQuery(points, signed_distance(placed, points), surface, up=up, floor_offset=floor)
+
+
+def tilted_truth(theta: float):
+    """A Sim3 turning by ``theta`` about a tilted up axis, and that axis (3,)."""
+    from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_between
+
+    up = np.array([0.3, 0.9, -0.2])
+    up /= np.linalg.norm(up)
+    rotation = axis_angle_matrix(up, theta) @ rotation_between([0, 1, 0], up)
+    return Sim3(1.7, rotation, np.array([2.0, -1.0, 0.5])), up

@@ -6,17 +6,15 @@ import numpy as np
 import pytest
 import torch
 
-from analytic import LShapeDecoder
+from analytic import LShapeDecoder, make_query, tilted_truth
 from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
 from jsrte.fit.optimize import SampleDrawer, _adam, _prune, hypothesis_losses, optimize
 from jsrte.fit.params import HypothesisBatch, Init
-from jsrte.fit.query import SdfQuery
 from jsrte.fit.solve import fit_query
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix, rotation_angle_deg, rotation_between, spherical_from_axis
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FAST
-from jsrte.sdf.mesh_sdf import signed_distance
 
 SETTINGS = replace(FAST.fit, iterations=150, samples_per_iteration=1500, lr_decay_every=100, prune_after=20,
                    prune_keep=2, selection="loss", extract_resolution=48)
@@ -32,23 +30,6 @@ def lshape():
 @pytest.fixture(scope="module")
 def lshape_mesh(lshape):
     return decode_mesh(lshape.decoder, torch.zeros(4), resolution=48).mesh
-
-
-def make_query(mesh, truth: Sim3, up, rng) -> SdfQuery:
-    placed = mesh.copy()
-    placed.vertices = truth.apply(mesh.vertices)
-    surface = np.asarray(placed.sample(3000, seed=1))
-    points = np.concatenate([surface + rng.normal(size=surface.shape) * 0.02,
-                             surface + rng.normal(size=surface.shape) * 0.15])
-    floor = None if up is None else float((placed.vertices @ up).min())
-    return SdfQuery(points, signed_distance(placed, points), surface, up=up, floor_offset=floor)
-
-
-def tilted_truth(theta: float) -> tuple[Sim3, np.ndarray]:
-    up = np.array([0.3, 0.9, -0.2])
-    up /= np.linalg.norm(up)
-    rotation = axis_angle_matrix(up, theta) @ rotation_between([0, 1, 0], up)
-    return Sim3(1.7, rotation, np.array([2.0, -1.0, 0.5])), up
 
 
 def test_known_axis_recovers_transform_from_theta_grid(lshape, lshape_mesh):

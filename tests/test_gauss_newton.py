@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from analytic import LShapeDecoder, WideningLShapeDecoder
+from analytic import LShapeDecoder, WideningLShapeDecoder, make_query, tilted_truth
 from jsrte.errors import JsrteError
 from jsrte.fit.gauss_newton import Linearization, Problem, damped_step, free_columns, linearize, pack, solve
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
@@ -20,7 +20,6 @@ from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.model.decoder import Decoder, DecoderConfig
 from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FAST
-from jsrte.sdf.mesh_sdf import signed_distance
 
 SETTINGS = replace(FAST.fit, solver="gauss-newton", iterations=40, samples_per_iteration=2000, prune_after=3,
                    prune_keep=2, prune_again_after=None, selection="loss", extract_resolution=48,
@@ -38,23 +37,6 @@ def widening():
 @pytest.fixture(scope="module")
 def widened_mesh(widening):
     return decode_mesh(widening.decoder, torch.tensor(TRUE_CODE, dtype=torch.float32), resolution=64).mesh
-
-
-def make_query(mesh, truth: Sim3, up, rng) -> SdfQuery:
-    placed = mesh.copy()
-    placed.vertices = truth.apply(mesh.vertices)
-    surface = np.asarray(placed.sample(3000, seed=1))
-    points = np.concatenate([surface + rng.normal(size=surface.shape) * 0.02,
-                             surface + rng.normal(size=surface.shape) * 0.15])
-    floor = None if up is None else float((placed.vertices @ up).min())
-    return SdfQuery(points, signed_distance(placed, points), surface, up=up, floor_offset=floor)
-
-
-def tilted_truth(theta: float) -> tuple[Sim3, np.ndarray]:
-    up = np.array([0.3, 0.9, -0.2])
-    up /= np.linalg.norm(up)
-    rotation = axis_angle_matrix(up, theta) @ rotation_between([0, 1, 0], up)
-    return Sim3(1.7, rotation, np.array([2.0, -1.0, 0.5])), up
 
 
 def test_known_axis_recovers_transform_and_code_from_the_theta_grid(widening, widened_mesh):

@@ -129,9 +129,12 @@ def test_write_room_writes_the_truth(tmp_path, room):
 # --- segmentation ----------------------------------------------------------------------------
 
 
-def test_walls_are_found_and_only_walls(room, prepared_floor):
+@pytest.mark.parametrize("sensor", ["none", "viewpoints", "normals"])
+def test_walls_are_found_and_only_walls(room, prepared_floor, sensor):
     floor, above = prepared_floor
-    is_wall, walls = find_walls(room.scan.points[above], floor.normal, rng=np.random.default_rng(0))
+    is_wall, walls = find_walls(room.scan.points[above], floor.normal, rng=np.random.default_rng(0),
+                                viewpoints=room.scan.cameras if sensor == "viewpoints" else None,
+                                normals=room.scan.normals[above] if sensor == "normals" else None)
     truth = room.labels[above] == WALL_LABEL
     assert len(walls) >= 1
     assert is_wall[truth].mean() > 0.85
@@ -170,6 +173,26 @@ def test_clean_scan_segments_as_before(chair=None):
         assert prepared.segmentation.walls == []
         assert scan.is_object[prepared.index].mean() > 0.995
         assert scan.is_object[prepared.index].sum() > 0.8 * scan.is_object.sum()
+
+
+@pytest.fixture(scope="module")
+def bed_scan():
+    """A held-out procedural bed whose long side faces the cameras: a vertical plane 2 m across
+    with the rest of the bed on one side of it, as a wall has the room."""
+    from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
+
+    bed = generate_shape("bed", shape_seed(EVAL_SET_SEED, 101)).mesh
+    return scan_mesh(bed, rng=np.random.default_rng(101))
+
+
+@pytest.mark.parametrize("sensor", ["viewpoints", "normals"])
+def test_the_long_side_of_a_bed_is_not_a_wall(bed_scan, sensor):
+    """The bed lies behind its side, away from the sensor; a room lies in front of its walls."""
+    cloud = ScanCloud(bed_scan.points, bed_scan.normals if sensor == "normals" else None)
+    prepared = prepare_scan(cloud, rng=np.random.default_rng(0),
+                            viewpoints=bed_scan.cameras if sensor == "viewpoints" else None)
+    assert prepared.segmentation.walls == []
+    assert bed_scan.is_object[prepared.index].sum() > 0.8 * bed_scan.is_object.sum()
 
 
 def test_normalized_cut_splits_a_chair_from_a_box_beside_it():

@@ -503,7 +503,9 @@ def segment_scan(
         segment = replace(segment, min_height_m=0.0, min_width_m=0.0, max_height_m=np.inf, max_width_m=np.inf)
     try:
         segmentation = segment_objects(points[index], heights, up_axis, rng=np.random.default_rng(SEGMENT_SEED),
-                                       shape=shape, at=at, settings=segment, path=cloud.path)
+                                       shape=shape, at=at, viewpoints=viewpoints,
+                                       normals=None if cloud.normals is None else cloud.normals[index],
+                                       settings=segment, path=cloud.path)
     except JsrteError:
         if settings.units_check:  # nothing of an object's size: say first if the units look wrong
             check_units(points[index], cloud.path, settings=settings, what="what stands on the floor")

@@ -80,6 +80,9 @@ class SegmentSettings:
     wall_min_span_m: float = 1.2
     """A wall's points span this far, across or up (2nd to 98th percentile): bigger than the
     face of an object of a room."""
+    wall_min_height_m: float = 0.85
+    """A wall's points rise this far (2nd to 98th percentile): walls are seen from the floor to
+    above most furniture; a headboard or a table's side is lower."""
     wall_one_side: float = 0.95
     """At least this share of the other points (off the plane) lie on one side of a wall."""
     cluster_eps_factor: float = 4.0
@@ -189,17 +192,20 @@ def class_score(points: np.ndarray, heights: np.ndarray, shape: ClassShape | Non
 def segment_objects(
     points: np.ndarray, heights: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
     shape: ClassShape | None = None, at: np.ndarray | None = None,
+    viewpoints: np.ndarray | None = None, normals: np.ndarray | None = None,
     settings: SegmentSettings = SegmentSettings(), path: object = None,
 ) -> Segmentation:
     """Find the object among ``points`` (n, 3) standing on the floor (``heights`` (n,) above it,
     ``up`` (3,) its unit normal).
 
     The object is the candidate nearest ``at`` (3,) when given, else the one that matches
-    ``shape`` best, else the one with the most points. Raises ``JsrteError`` (naming ``path``)
-    when no candidate is left, saying what was removed.
+    ``shape`` best, else the one with the most points. The sensor's ``viewpoints`` (k, 3) or the
+    points' sensor-facing ``normals`` (n, 3), when known, tell walls from the faces of furniture
+    (:func:`find_walls`). Raises ``JsrteError`` (naming ``path``) when no candidate is left,
+    saying what was removed.
     """
     points = np.ascontiguousarray(points, dtype=np.float64)
-    is_wall, walls = find_walls(points, up, rng=rng, settings=settings)
+    is_wall, walls = find_walls(points, up, rng=rng, viewpoints=viewpoints, normals=normals, settings=settings)
     kept = np.flatnonzero(~is_wall)
     removed = {"walls": int(is_wall.sum())}
     if len(kept) < settings.min_points:
@@ -224,10 +230,16 @@ def segment_objects(
 
 
 def find_walls(points: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
+               viewpoints: np.ndarray | None = None, normals: np.ndarray | None = None,
                settings: SegmentSettings = SegmentSettings()) -> tuple[np.ndarray, list[dict[str, Any]]]:
     """Walls among ``points`` (n, 3): planes found by RANSAC (Open3D), biggest first, that are
-    vertical (``up`` (3,)), span more than ``wall_min_span_m`` and have (almost) every other
-    point on one side. Returns the wall mask (n,) bool and each wall's description."""
+    vertical (``up`` (3,)), span more than ``wall_min_span_m``, rise ``wall_min_height_m`` and
+    have (almost) every other point on one side: the room's. A wall faces the room, where the
+    sensor and the furniture are; a face of a piece of furniture (a bed's side, a table's apron)
+    has the rest of that piece behind it, away from the sensor. The room's side is that of the
+    ``viewpoints`` (k, 3), all of them, else the one the plane's points' ``normals`` (n, 3) face
+    (sensor-facing, as depth scans give them); with neither, either side.
+    Returns the wall mask (n,) bool and each wall's description."""
     import open3d as o3d
 
     from jsrte.scans.preprocess import _refit_plane
@@ -249,8 +261,9 @@ def find_walls(points: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
         normal, offset = _refit_plane(points[remaining], np.asarray(model[:3]), float(-model[3]), s.wall_distance_m)
         distance = points @ normal - offset
         near = np.abs(distance[remaining]) < s.wall_distance_m
+        room_sides = _sensor_sides(normal, offset, remaining[near], viewpoints, normals)
         if abs(float(normal @ up)) < across_tolerance and _is_wall(points[remaining[near]], distance, normal,
-                                                                   up, ~is_wall, s):
+                                                                   up, ~is_wall, room_sides, s):
             plane = np.abs(distance) < _wall_band(distance, s)
             is_wall |= plane
             side = np.sign(np.median(distance[~plane & (np.abs(distance) > 3 * s.wall_distance_m)]))
@@ -271,21 +284,42 @@ def _wall_band(distance: np.ndarray, s: SegmentSettings) -> float:
     return float(np.clip(3.0 * sigma, s.wall_distance_m, s.wall_band_max_m))
 
 
+WALL_NORMALS_AGREE = 0.8
+"""This share of a wall's points' normals face one side of it, the room's."""
+
+
+def _sensor_sides(normal: np.ndarray, offset: float, inliers: np.ndarray, viewpoints: np.ndarray | None,
+                  normals: np.ndarray | None) -> set[int]:
+    """The sides (+1: the one ``normal`` (3,) points to, -1: the other) of the plane
+    ``normal . x = offset`` the room may be on, as the sensor tells it: every one of the
+    ``viewpoints`` (k, 3) is in the room (none on both sides: no wall), else the plane's points
+    (``inliers`` (m,) indices into ``normals`` (n, 3)) face the room (a plane seen from both sides,
+    a headboard, is no wall); with neither, either side."""
+    if viewpoints is not None and len(viewpoints):
+        sides = {int(side) for side in np.sign(viewpoints @ normal - offset)}
+        return sides if len(sides) == 1 else set()
+    if normals is not None and len(inliers):
+        facing = float((normals[inliers] @ normal > 0).mean())
+        return {1} if facing >= WALL_NORMALS_AGREE else {-1} if facing <= 1.0 - WALL_NORMALS_AGREE else set()
+    return {1, -1}
+
+
 def _is_wall(inliers: np.ndarray, distance: np.ndarray, normal: np.ndarray, up: np.ndarray,
-             others: np.ndarray, s: SegmentSettings) -> bool:
+             others: np.ndarray, room_sides: set[int], s: SegmentSettings) -> bool:
     """Whether a vertical plane's ``inliers`` (m, 3) make a wall: wide or tall enough, and the
-    points (``others`` (n,) mask) off it (by signed ``distance`` (n,)) on one side of it."""
+    points (``others`` (n,) mask) off it (by signed ``distance`` (n,)) on one side of it, one of
+    the ``room_sides`` (+1: where ``normal`` (3,) points, -1: the other)."""
     across = np.cross(up, normal)
     across /= np.linalg.norm(across)
     width = np.ptp(np.percentile(inliers @ across, [2, 98]))
     height = np.ptp(np.percentile(inliers @ up, [2, 98]))
-    if max(width, height) < s.wall_min_span_m:
+    if max(width, height) < s.wall_min_span_m or height < s.wall_min_height_m or not room_sides:
         return False
     off = distance[others & (np.abs(distance) > 3 * s.wall_distance_m)]
     if not len(off):
         return True
-    above = float((off > 0).mean())
-    return max(above, 1.0 - above) >= s.wall_one_side
+    share = {1: float((off > 0).mean()), -1: float((off < 0).mean())}
+    return max(share[side] for side in room_sides) >= s.wall_one_side
 
 
 def _spacing(points: np.ndarray) -> float:

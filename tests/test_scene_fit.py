@@ -92,6 +92,28 @@ def test_a_failing_object_is_recorded_and_the_others_go_on(room_scan, monkeypatc
     assert record["objects"][0]["points"] >= calls[0] > 0  # the candidate's points, before cleaning
 
 
+@pytest.mark.slow
+def test_objects_fitted_at_once_match_those_fitted_in_turn(room_scan):
+    """Two objects in two threads, one PyTorch thread each: the same fits as one after the other."""
+    import torch
+
+    from jsrte.fit.scene import fit_scene
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        in_turn = fit_scene(room_scan, model="chair,table", preset="smoke", workers=1)
+    finally:
+        torch.set_num_threads(before)
+    at_once = fit_scene(room_scan, model="chair,table", preset="smoke", workers=2)
+    assert torch.get_num_threads() == before
+    assert len(in_turn.fitted) == len(at_once.fitted) == 2
+    for a, b in zip(in_turn.objects, at_once.objects, strict=True):
+        assert a.model == b.model and a.class_choice == b.class_choice
+        assert np.array_equal(a.result.transform.matrix(), b.result.transform.matrix())
+        assert np.array_equal(a.result.latent, b.result.latent)
+
+
 def test_scene_with_at_is_a_one_line_error(room_scan, tmp_path, monkeypatch, capsys):
     code, _, err = run_cli(monkeypatch, capsys, "fit", room_scan, "--scene", "--at", "0,0,0", "--out", tmp_path / "o")
     assert code != 0 and "--at" in err and err.strip().count("\n") == 0

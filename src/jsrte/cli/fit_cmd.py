@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import typer
@@ -26,7 +27,7 @@ def fit_command(
     line_of_sight: bool = opt.LINE_OF_SIGHT, free_axis: bool = opt.FREE_AXIS, at: str = opt.AT,
     hypotheses: int = opt.HYPOTHESES, seed: int = opt.SEED, device: str = opt.DEVICE,
     units_check: bool = opt.UNITS_CHECK,
-    threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
+    threads: int = typer.Option(0, help="CPU threads (0: all cores); with --scene, objects fitted at once."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
 ) -> None:
@@ -93,7 +94,7 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
         raise JsrteError("--scene fits every object; --at picks one (give one or the other)")
     check_out_folder(out, marker=SCENE_NAME, overwrite=overwrite)
     set_threads(threads)
-    scene = fit_scene(scan, model=model, options=options, progress=progress)
+    scene = fit_scene(scan, model=model, options=options, progress=progress, workers=threads or os.cpu_count() or 1)
     with output_dir(out, overwrite=overwrite, marker=SCENE_NAME) as folder:
         write_scene_outputs(scene, folder, extra={"input": str(scan)})
     for obj in scene.objects:

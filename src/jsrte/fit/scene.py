@@ -15,6 +15,7 @@ their point counts. ``jsrte.fit.scene_outputs`` writes the files.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -121,7 +122,7 @@ class SceneResult:
 
 
 def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions | None = None,
-              screen: ScreenSettings = ScreenSettings(), progress: bool = False,
+              screen: ScreenSettings = ScreenSettings(), progress: bool = False, workers: int = 1,
               **changes: object) -> SceneResult:
     """Fit every object standing on the floor of the scan at ``path``.
 
@@ -132,7 +133,10 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         shipped model, "chair,table", a list, or one model: then no class is chosen)
     options : how to fit (``FitOptions``; ``at`` is refused: a scene fits every object)
     screen : how the class of each object is screened
-    progress : show each fit's progress bar
+    progress : show each fit's progress bar (one object at a time only)
+    workers : objects fitted at once, each in a thread of its own with one PyTorch thread (the
+        fits' PyTorch and NumPy work runs outside Python's interpreter lock); 1: one after the
+        other, with PyTorch's threads as they are set
     changes : options by name, applied over ``options``
 
     Raises ``JsrteError`` when the scan holds no object (saying what segmentation removed).
@@ -154,21 +158,41 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     segmented = cands.segmented
     seg = cands.segmentation
     cloud_points = np.asarray(segmented.cloud.points, float)
-    objects = []
-    for number, k in enumerate(cands.valid()):
-        points = cloud_points[segmented.index[seg.candidates[k].index]]
-        obj = SceneObject(number, k, points)
-        try:
-            _fit_object(obj, cands, models, options, screen, progress)
-        except JsrteError as exc:
-            obj.status, obj.reason, obj.result = "failed", str(exc), None
-        objects.append(obj)
+    objects = [SceneObject(number, k, cloud_points[segmented.index[seg.candidates[k].index]])
+               for number, k in enumerate(cands.valid())]
+    _fit_objects(objects, cands, models, options, screen, progress, workers)
     skipped = [{"candidate": k, "points": len(c.index), "reason": c.rejected}
                for k, c in enumerate(seg.candidates) if c.rejected]
     floor = segmented.floor
     return SceneResult(objects, skipped, seg.to_json(), cloud_points, up=np.asarray(segmented.up, float),
                        floor_offset=None if floor is None else float(floor.offset),
                        options=options.record(), models=list(models))
+
+
+def _fit_objects(objects: list[SceneObject], cands: object, models: dict, options: FitOptions,
+                 screen: ScreenSettings, progress: bool, workers: int) -> None:
+    """Fit every one of ``objects`` (in ``workers`` threads when more than one); a failed fit is
+    recorded in its object and the others go on."""
+    def fit_one(obj: SceneObject) -> None:
+        try:
+            _fit_object(obj, cands, models, options, screen, progress and workers == 1)
+        except JsrteError as exc:
+            obj.status, obj.reason, obj.result = "failed", str(exc), None
+
+    workers = max(1, min(workers, len(objects)))
+    if workers == 1:
+        for obj in objects:
+            fit_one(obj)
+        return
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with ThreadPoolExecutor(workers) as pool:
+            list(pool.map(fit_one, objects))
+    finally:
+        torch.set_num_threads(before)
 
 
 def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptions, screen: ScreenSettings,

@@ -432,7 +432,7 @@ def write_scenes_report(out: Path, rooms: list[int], rows: list[dict]) -> Path |
     for room in rooms:
         fit_dir = out / "fits" / f"{room:03d}"
         try:
-            room_items = load_items(find_fits(fit_dir), max_scan_points=10_000)
+            room_items = load_items(find_fits(fit_dir), max_scan_points=5_000)
         except JsrteError:
             continue
         truth = _true_meshes(out / "rooms" / f"{room:03d}")

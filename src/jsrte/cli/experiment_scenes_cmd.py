@@ -21,7 +21,8 @@ def scenes_command(
     first: int = typer.Option(0, help="Index of the first room (rooms FIRST ... FIRST+ROOMS-1; the reported set "
                                       "is 0-19 of seed 0: tune on others, e.g. --first 100)."),
     seed: int = typer.Option(0, help="Room seed: room i of seed s is drawn from s * 100003 + i alone."),
-    objects: str = typer.Option("3,6", help="Objects per room 'LO,HI' (drawn uniformly; 1 to 9)."),
+    objects: str = typer.Option("3,6", help="Objects per room 'LO,HI' (drawn uniformly; 2 to 9: a room of one "
+                                            "object gives too few views to find its floor)."),
     model: str = typer.Option("auto", help="The models each object's class is chosen among: auto (every shipped "
                                            "model) or a comma-separated list."),
     preset: str = typer.Option("fast", help=f"Fit preset: {', '.join(PRESETS)}."),
@@ -59,7 +60,7 @@ def scenes_command(
         raise JsrteError(f"holds no run to resume ({CONFIG_NAME} is missing)", out)
     model_names(model)  # "auto" without any shipped model is an error now, not after the first room
     config = ScenesConfig(rooms=rooms, first=first, seed=seed, preset=preset, model=model,
-                          objects=_count_range(objects, "objects", 1, 9))
+                          objects=_count_range(objects, "objects", 2, 9))
     set_threads(threads)
     with output_dir(out, overwrite=True, keep=lambda folder: (folder / OBJECTS_NAME).is_file()) as folder:
         if overwrite:

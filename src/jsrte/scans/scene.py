@@ -97,6 +97,19 @@ class SceneSettings:
     take a depth between the two surfaces (flying pixels along silhouettes)."""
     normal_noise_deg: float = 8.0
     """Std of a random tilt added to each estimated normal."""
+    behind_clearance_deg: float = 0.0
+    """Nor within this azimuth of the direction away from the cameras (0: behind is allowed)."""
+    frame_all: bool = False
+    """Room mode, for scenes of several objects of interest: the target keeps its own size (its
+    mesh in metres, as the other objects); the other objects are placed first; then the camera
+    sweeps past them all, ``views_per_object`` level views looking at each object from the
+    cameras' side; the walls stand behind and beside all of them. False: the target is sized
+    as ``jsrte scan`` sizes it and a short arc of views frames it alone."""
+    views_per_object: int = 2
+    object_arc_deg: float = 40.0
+    """Room mode: views looking at each object, spread over this azimuth span."""
+    place_tries: int = 24
+    """Random positions tried for each other object before it is left out."""
 
 
 @dataclass(frozen=True)
@@ -154,24 +167,25 @@ def scan_room(
     s = settings
     _check_settings(s.scanner)
     validate_mesh(target)
-    level_from_mesh, _ = _place_object(target, rng, s.scanner)
+    level_from_mesh, _ = _place_object(target, rng, _own_size(target, s.scanner) if s.frame_all else s.scanner)
     target_level = level_from_mesh.apply(target.vertices)
-    centre = (target_level.min(0) + target_level.max(0)) / 2.0
-    sphere_radius = float(np.linalg.norm(target_level - centre, axis=1).max())
+    centre, sphere_radius = _bounding_sphere(target_level)
     facing = float(rng.uniform(0.0, 2.0 * math.pi))  # azimuth of the cameras, seen from the target
-    cameras = _cameras(centre, sphere_radius, rng, s.scanner, azimuth=facing)
-    cameras = _walked_level(cameras, centre, rng, s)
-    walls = _walls(target_level, cameras, facing, rng, s)
     placed = [(target_level, target.faces)]
-    footprints = [_footprint(trimesh.Trimesh(target_level, target.faces, process=False), rng)]
     objects_level = [SceneObject(target_kind, target, level_from_mesh)]
-    for kind, mesh, style in others if others is not None else _draw_others(rng, s):
-        where = _place_beside(mesh, footprints, walls, facing, rng, s, first=len(placed) == 1)
-        if where is not None:
-            placed.append((where.apply(mesh.vertices), mesh.faces))
-            footprints.append(_footprint(trimesh.Trimesh(placed[-1][0], mesh.faces, process=False), rng))
-            objects_level.append(SceneObject(kind, mesh, where, style))
-    points, labels, outlier, view = _render_room(placed, walls, cameras, centre, rng, s)
+    looks = None
+    if s.frame_all:  # the objects first, then a sweep of views past them and walls round them all
+        _place_others(placed, objects_level, others, np.zeros((0, 4)), facing, rng, s)
+        everything = np.concatenate([vertices for vertices, _ in placed])
+        centre, _ = _bounding_sphere(everything)
+        cameras, looks = _sweep(placed, facing, rng, s)
+        walls = _walls(everything, cameras, facing, rng, s)
+    else:
+        cameras = _cameras(centre, sphere_radius, rng, s.scanner, azimuth=facing)
+        cameras = _walked_level(cameras, centre, rng, s)
+        walls = _walls(target_level, cameras, facing, rng, s)
+        _place_others(placed, objects_level, others, walls, facing, rng, s)
+    points, labels, outlier, view = _render_room(placed, walls, cameras, centre, rng, s, looks=looks)
     world_from_level = _world_frame(rng, s.scanner)
     normals = _noisy_normals(_camera_facing_normals(points, cameras[view], s.scanner), rng, s)
     scan = VirtualScan(
@@ -183,6 +197,52 @@ def scan_room(
     objects = [replace(o, scan_from_mesh=world_from_level @ o.scan_from_mesh) for o in objects_level]
     return VirtualRoom(scan=scan, labels=labels, objects=objects,
                        walls=_planes_to_world(walls, world_from_level), settings=s)
+
+
+def _place_others(placed: list[tuple[np.ndarray, np.ndarray]], objects: list[SceneObject],
+                  others: list[tuple[str, trimesh.Trimesh, str]] | None, walls: np.ndarray, facing: float,
+                  rng: np.random.Generator, s: SceneSettings) -> None:
+    """Place the other objects (given, or drawn from ``s.other_kinds``) beside what is placed;
+    appends to ``placed`` ((vertices (k, 3) level frame, faces) each) and ``objects``. An object
+    that fits nowhere in ``s.place_tries`` tries is left out."""
+    footprints = [_footprint(trimesh.Trimesh(v, f, process=False), rng) for v, f in placed]
+    for kind, mesh, style in others if others is not None else _draw_others(rng, s):
+        where = _place_beside(mesh, footprints, walls, facing, rng, s, first=len(placed) == 1,
+                              tries=s.place_tries)
+        if where is not None:
+            placed.append((where.apply(mesh.vertices), mesh.faces))
+            footprints.append(_footprint(trimesh.Trimesh(placed[-1][0], mesh.faces, process=False), rng))
+            objects.append(SceneObject(kind, mesh, where, style))
+
+
+def _sweep(placed: list[tuple[np.ndarray, np.ndarray]], facing: float, rng: np.random.Generator,
+           s: SceneSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Room mode's cameras (k, 3) and the points they look at (k, 3): ``s.views_per_object``
+    views of each placed object (vertices (m, 3) level frame), on an arc of ``s.object_arc_deg``
+    centred on ``facing``, at the scanner's distance (raised until the object fits the image);
+    all at one height (the mean, off by ``camera_height_jitter_m``): a scan walked past the room."""
+    one = replace(s.scanner, views=s.views_per_object, arc_deg=s.object_arc_deg)
+    cameras, looks = [], []
+    for vertices, _ in placed:
+        centre, radius = _bounding_sphere(vertices)
+        views = _cameras(centre, radius, rng, one, azimuth=facing)
+        cameras.append(views)
+        looks.append(np.broadcast_to(centre, views.shape))
+    cameras = np.concatenate(cameras)
+    cameras[:, 1] = cameras[:, 1].mean() + rng.normal(scale=s.camera_height_jitter_m, size=len(cameras))
+    return cameras, np.concatenate(looks)
+
+
+def _own_size(mesh: trimesh.Trimesh, s: ScannerSettings) -> ScannerSettings:
+    """Scanner settings that stand ``mesh`` (metres) at its own size (scale 1)."""
+    height = float(np.ptp(mesh.vertices[:, 1]))
+    return replace(s, target_height_m=(height, height), max_extent_m=None)
+
+
+def _bounding_sphere(vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (3,) of the bounding box of ``vertices`` (k, 3) and the largest distance from it."""
+    centre = (vertices.min(0) + vertices.max(0)) / 2.0
+    return centre, float(np.linalg.norm(vertices - centre, axis=1).max())
 
 
 def write_room(room: VirtualRoom, out_dir: str | Path, *, seed: int | None = None) -> Path:
@@ -338,13 +398,14 @@ def _place_beside(mesh: trimesh.Trimesh, footprints: list[np.ndarray], walls: np
     own = _footprint(mesh, rng)
     own3 = np.column_stack([own[:, 0], np.zeros(len(own)), own[:, 1]])
     clearance = math.radians(s.front_clearance_deg)
+    behind = math.radians(s.behind_clearance_deg)
     gap_range = s.first_neighbour_gap_m if first else s.neighbour_gap_m
     for _ in range(tries):
         yaw = Sim3(1.0, _yaw(float(rng.uniform(0.0, 2.0 * math.pi))), np.zeros(3))
         lo, hi = mesh.bounds
         anchor = np.array([(lo[0] + hi[0]) / 2.0, lo[1], (lo[2] + hi[2]) / 2.0])
         local = (yaw @ Sim3(1.0, np.eye(3), -anchor)).apply(own3)
-        azimuth = facing + float(rng.uniform(clearance, 2.0 * math.pi - clearance))
+        azimuth = facing + _beside_azimuth(clearance, behind, rng)
         direction = np.array([math.cos(azimuth), math.sin(azimuth)])
         gap = float(rng.uniform(*gap_range))
         offset = _distance_for_gap(local[:, [0, 2]], centre, direction, tree, gap)
@@ -356,6 +417,13 @@ def _place_beside(mesh: trimesh.Trimesh, footprints: list[np.ndarray], walls: np
         if inside:
             return where
     return None
+
+
+def _beside_azimuth(front: float, behind: float, rng: np.random.Generator) -> float:
+    """An azimuth (radians, from the cameras' direction) uniform over [front, pi - behind] and
+    [pi + behind, 2 pi - front]."""
+    azimuth = float(rng.uniform(front, 2.0 * math.pi - front - 2.0 * behind))
+    return azimuth + 2.0 * behind if azimuth > math.pi - behind else azimuth
 
 
 def _distance_for_gap(footprint: np.ndarray, centre: np.ndarray, direction: np.ndarray, tree: Any,
@@ -379,9 +447,10 @@ def _distance_for_gap(footprint: np.ndarray, centre: np.ndarray, direction: np.n
 
 
 def _render_room(placed: list[tuple[np.ndarray, np.ndarray]], walls: np.ndarray, cameras: np.ndarray,
-                 centre: np.ndarray, rng: np.random.Generator, s: SceneSettings
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Points (n, 3), labels (n,), outlier flags (n,) and view index (n,) of every camera."""
+                 centre: np.ndarray, rng: np.random.Generator, s: SceneSettings, *,
+                 looks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points (n, 3), labels (n,), outlier flags (n,) and view index (n,) of every camera; each
+    camera looks at ``centre``, or at its row of ``looks`` (k, 3)."""
     import open3d as o3d
 
     scene = o3d.t.geometry.RaycastingScene()
@@ -404,7 +473,7 @@ def _render_room(placed: list[tuple[np.ndarray, np.ndarray]], walls: np.ndarray,
     label_of = np.array(label_of + [NOTHING_LABEL])  # index -1: a pixel that hit nothing
     points, labels, outliers, views = [], [], [], []
     for k, camera in enumerate(cameras):
-        view = render_view(scene, camera, centre, rng, s.scanner)
+        view = render_view(scene, camera, centre if looks is None else looks[k], rng, s.scanner)
         depth, label = _mixed_pixels(view.depth, label_of[view.geometry], rng, s)
         keep = np.isfinite(depth) & (depth < s.max_depth_m) & (view.incidence >= s.grazing_cos)
         keep |= np.isfinite(depth) & (label == NOTHING_LABEL) & (depth < s.max_depth_m)

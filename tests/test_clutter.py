@@ -212,6 +212,32 @@ def test_normalized_cut_splits_a_chair_from_a_box_beside_it():
     assert normalized_cut(room.scan.points[box_alone])[1] > 0.02  # one box: no neck to cut
 
 
+def _surface_points(mesh: trimesh.Trimesh, n: int, seed: int) -> np.ndarray:
+    return np.asarray(trimesh.sample.sample_surface(mesh, n, seed=seed)[0])
+
+
+@pytest.mark.parametrize("with_class", [False, True])
+def test_a_table_top_seen_apart_from_its_legs_rests_on_them(with_class):
+    """The top floats 20 cm above its legs' visible ends (one cluster each, out of joining reach):
+    it takes in the legs under it, not the box beside it, and the table is one candidate."""
+    move = trimesh.transformations.translation_matrix
+    top = trimesh.creation.box([1.0, 0.04, 0.6], transform=move([0, 0.73, 0]))
+    legs = [trimesh.creation.box([0.05, 0.5, 0.05], transform=move([x, 0.25, z]))
+            for x in (-0.45, 0.45) for z in (-0.25, 0.25)]
+    side_box = box((0.3, 0.4, 0.3))
+    side_box.apply_translation([1.0, 0.0, 0.0])
+    parts = [_surface_points(top, 3000, 0)] + [_surface_points(leg, 300, k) for k, leg in enumerate(legs)]
+    points = np.concatenate(parts + [_surface_points(side_box, 1200, 9)])
+    table_points = sum(len(p) for p in parts)
+    shape = ClassShape.of_mesh("table", table().vertices, table().sample(5000, seed=0)) if with_class else None
+    result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0),
+                             shape=shape)
+    valid = [c for c in result.candidates if not c.rejected]
+    table_like = [c for c in valid if (c.index < table_points).mean() > 0.99]
+    assert len(table_like) == 1 and len(table_like[0].index) > 0.98 * table_points
+    assert any((c.index >= table_points).all() for c in valid)  # the box stays apart
+
+
 def test_nothing_left_says_what_was_removed():
     rng = np.random.default_rng(0)
     flat = np.column_stack([rng.uniform(0, 2, 2000), rng.uniform(0, 0.05, 2000), rng.uniform(0, 2, 2000)])

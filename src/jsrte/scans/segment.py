@@ -107,6 +107,9 @@ class SegmentSettings:
     """A cluster with less than this share of a neighbour's points is a fragment of it."""
     join_slack: float = 0.05
     """Two big clusters merge when the merge's class score is at most the bigger's plus this."""
+    support_share: float = 0.5
+    """A cluster with this share of its points under a floating one (a leg under a table's top)
+    joins it."""
     min_points: int = 50
     """Fewer points than this: too few to fit."""
     shred_points: int = 300
@@ -215,6 +218,7 @@ def segment_objects(
     removed["dbscan_noise"] = int((labels < 0).sum())
     clusters = [kept[labels == k] for k in range(labels.max(initial=-1) + 1)]
     clusters = _join(clusters, points, heights, shape, settings)
+    clusters = _join_supported(clusters, points, heights, up, settings)
     clusters = [part for c in clusters for part in _split(c, points, heights, shape, settings)]
     candidates = [_candidate(c, points, heights, up, shape, settings) for c in clusters]
     candidates.sort(key=lambda c: -len(c.index))
@@ -344,8 +348,8 @@ def _split(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: 
     """``cluster`` (indices) or its parts, split by the normalized cut of its neighbour graph
     (:func:`normalized_cut`: the narrowest neck between two bodies, where touching objects
     meet). A split is kept when one part matches the class better than the whole by
-    ``split_margin``, or when the whole is too big to be an object; each part is split
-    again, ``split_depth`` deep."""
+    ``split_margin`` and both parts could be objects (neither too flat nor too thin), or when
+    the whole is too big to be an object; each part is split again, ``split_depth`` deep."""
     if len(cluster) < 2 * s.shred_points or depth >= s.split_depth:
         return [cluster]
     whole = class_score(points[cluster], heights[cluster], shape)
@@ -356,6 +360,8 @@ def _split(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: 
     parts = [cluster[side], cluster[~side]]
     if value > s.cut_max or min(len(p) for p in parts) < s.shred_points:
         return [cluster]
+    if not too_big and not all(_object_sized(points[p], heights[p], s) for p in parts):
+        return [cluster]  # a table's top cut from its legs: a part no object could be
     best = min((class_score(points[p], heights[p], shape) or 0.0) for p in parts)
     if not (too_big or (whole is not None and best < whole - s.split_margin)):
         return [cluster]
@@ -406,6 +412,12 @@ def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int =
         return np.ones(len(points), dtype=bool), float("inf")
     _, nearest = KDTree(sub).query(points, k=1)
     return best[nearest], best_cut
+
+
+def _object_sized(points: np.ndarray, heights: np.ndarray, s: SegmentSettings) -> bool:
+    """Whether ``points`` (n, 3) at ``heights`` (n,) are tall and wide enough to be an object."""
+    tall = float(np.ptp(np.percentile(heights, [2, 98])))
+    return tall >= s.min_height_m and _width(points, heights) >= s.min_width_m
 
 
 def _too_big(points: np.ndarray, heights: np.ndarray, s: SegmentSettings) -> bool:
@@ -466,6 +478,33 @@ def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, s
             refused = {pair for pair in refused if i not in pair}
         else:
             refused.add((i, j))
+
+
+def _join_supported(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                    s: SegmentSettings) -> list[np.ndarray]:
+    """A cluster that floats (its lowest points ``min_height_m`` or more above the floor: a
+    table's top seen apart from its legs) rests on what stands under it: it takes in every
+    cluster lying below its underside (within ``join_m``) with ``support_share`` of its points
+    under it (within ``join_m`` of one of its points, across the ``up`` axis (3,))."""
+    from pykdtree.kdtree import KDTree
+
+    across = np.linalg.svd(up.reshape(1, 3))[2][1:]  # (2, 3) a basis of the floor's plane
+    clusters = sorted(clusters, key=lambda c: -float(np.percentile(heights[c], 2)))  # highest first
+    alive = [True] * len(clusters)
+    for i, top in enumerate(clusters):
+        underside = float(np.percentile(heights[top], 2))
+        if not alive[i] or underside < s.min_height_m:
+            continue
+        tree = KDTree(np.ascontiguousarray(points[top] @ across.T))
+        for j, below in enumerate(clusters):
+            if j == i or not alive[j] or float(np.percentile(heights[below], 98)) > underside + s.join_m:
+                continue
+            distance = tree.query(np.ascontiguousarray(points[below] @ across.T), k=1)[0]
+            if float((distance <= s.join_m).mean()) >= s.support_share:
+                top = np.concatenate([top, below])
+                alive[j] = False
+        clusters[i] = top
+    return [c for c, keep in zip(clusters, alive, strict=True) if keep]
 
 
 def _attach_small(big: list[np.ndarray], small: list[np.ndarray], points: np.ndarray, join_m: float

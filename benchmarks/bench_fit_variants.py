@@ -7,7 +7,8 @@ which Table 2 (shapes 0..29) does not use), then run variants of the ``fast`` fi
     .venv/bin/python benchmarks/bench_presets.py prepare --first-shape 100 --scans 20 --seed 5 --out runs/tune
     .venv/bin/python benchmarks/bench_fit_variants.py runs/tune --out runs/tune/raw.csv latent_space=raw
 
-Each ``KEY=VALUE`` replaces a field of ``jsrte.presets.FAST.fit`` (numbers and booleans as JSON).
+Each ``KEY=VALUE`` replaces a field of the fit settings of ``--preset`` (default ``fast``; numbers
+and booleans as JSON).
 Rows are written as they finish; the mean is printed at the end.
 """
 
@@ -23,8 +24,8 @@ from dataclasses import replace
 from pathlib import Path
 
 
-def settings_from(pairs: list[str]):
-    from jsrte.presets import FAST
+def settings_from(pairs: list[str], preset: str = "fast"):
+    from jsrte.presets import get_preset
 
     changes = {}
     for pair in pairs:
@@ -33,7 +34,7 @@ def settings_from(pairs: list[str]):
             changes[key] = json.loads(value)
         except json.JSONDecodeError:
             changes[key] = value
-    return replace(FAST.fit, **changes)
+    return replace(get_preset(preset).fit, **changes)
 
 
 def main() -> None:
@@ -41,6 +42,7 @@ def main() -> None:
     parser.add_argument("folder", help="A bench_presets.py prepare folder.")
     parser.add_argument("--out", required=True, help="CSV of per-scan rows.")
     parser.add_argument("--model", default="chair")
+    parser.add_argument("--preset", default="fast", help="Whose fit settings the KEY=VALUE changes start from.")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--scans", default=None, help="Comma-separated scan names (default: every scan).")
@@ -56,7 +58,7 @@ def main() -> None:
     from jsrte.model.registry import resolve_model
 
     torch.set_num_threads(args.threads)
-    settings = settings_from(args.changes)
+    settings = settings_from(args.changes, args.preset)
     folder = Path(args.folder)
     truths = pickle.loads((folder / "truths.pkl").read_bytes())
     model = resolve_model(args.model)
@@ -75,7 +77,8 @@ def main() -> None:
         score = score_against_truth(result, truth, rng=np.random.default_rng(args.seed))
         rows.append({"scan": name, "fscore": round(score["fscore"], 4),
                      "rotation_error_deg": round(score["rotation_error_deg"], 2),
-                     "scale_error_rel": round(score["scale_error_rel"], 4), "seconds": round(seconds, 1),
+                     "scale_error_rel": round(score["scale_error_rel"], 4),
+                     "translation_error": round(score["translation_error"], 4), "seconds": round(seconds, 1),
                      "optimize_s": result.timing["optimize"], "iterations": result.info["iterations"],
                      "decoder_evaluations": result.info["decoder_evaluations"],
                      "criterion": round(result.criterion["value"], 4)})
@@ -88,7 +91,7 @@ def main() -> None:
     print(f"{len(rows)} scans: mean F@5% {statistics.mean(scores):.3f}, median {statistics.median(scores):.3f}, "
           f"mean evaluations {statistics.mean(r['decoder_evaluations'] for r in rows):,.0f}, "
           f"mean optimize {statistics.mean(r['optimize_s'] for r in rows):.1f} s; "
-          f"settings changed: {args.changes or 'none'}")
+          f"preset {args.preset}, settings changed: {args.changes or 'none'}")
 
 
 if __name__ == "__main__":

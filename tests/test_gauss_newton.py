@@ -9,7 +9,16 @@ import torch
 
 from analytic import LShapeDecoder, WideningLShapeDecoder, make_query, tilted_truth
 from jsrte.errors import JsrteError
-from jsrte.fit.gauss_newton import Linearization, Problem, damped_step, free_columns, linearize, pack, solve
+from jsrte.fit.gauss_newton import (
+    Linearization,
+    Problem,
+    damped_step,
+    free_columns,
+    linearize,
+    pack,
+    solve,
+    translation_offsets,
+)
 from jsrte.fit.init import ClassGeometry, initial_hypotheses
 from jsrte.fit.optimize import hypothesis_losses
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
@@ -333,3 +342,53 @@ def test_polish_takes_adam_steps_on_fresh_samples_and_lowers_the_objective(widen
     assert objective() < 0.5 * before
     assert np.linalg.norm(batch.transform(0).t - truth.t) < 0.5 * np.linalg.norm(start.translation - truth.t)
     assert float(batch.psi[0]) == psi  # held
+
+
+
+def test_the_translation_search_finds_a_translation_off_by_a_third_of_the_scale(widening, widened_mesh):
+    """A start off by 0.3 s across the up axis: the search's grid moves it within a grid step of the
+    truth (one iteration), and the solve then recovers the known transform and code."""
+    truth, up = tilted_truth(theta=1.0)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(5))
+    psi, rho = spherical_from_axis(up)
+    across = np.cross(up, [1.0, 0.0, 0.0])
+    across *= 0.3 * truth.s / np.linalg.norm(across)
+    start = Init(scale=truth.s, psi=psi, rho=rho, theta=1.0, translation=truth.t + across, latent=np.zeros(3),
+                 base_rotation=rotation_between([0, 1, 0], up))
+    settings = replace(SETTINGS, prune_after=None, translation_search=0.4, translation_search_step=0.1)
+
+    def error(out) -> float:
+        return float(np.linalg.norm(out.batch.translation[0].detach().numpy() - truth.t))
+
+    def run(iterations: int, search: float):
+        return solve(widening.decoder, query, [start], replace(settings, iterations=iterations,
+                                                               translation_search=search),
+                     fixed=frozenset({"psi", "rho"}), generator=torch.Generator().manual_seed(0))
+
+    assert len(translation_offsets(settings)) == 81 and not translation_offsets(settings)[0].any()
+    searched, alone = run(1, 0.4), run(1, 0.0)
+    assert error(searched) < 0.1 * truth.s < error(alone)
+    assert searched.evaluations >= 81 * settings.yaw_screen_samples
+    joint = run(40, 0.4)
+    assert float(joint.batch.scale[0].detach()) == pytest.approx(truth.s, rel=0.02)
+    assert rotation_angle_deg(joint.batch.transform(0).R, truth.R) < 2.0
+    assert error(joint) < 0.03
+    assert float(joint.batch.latent[0, 0].detach()) == pytest.approx(TRUE_CODE[0], abs=0.03)
+
+
+def test_the_survivors_are_solved_on_a_fresh_larger_sample_set(widening, widened_mesh):
+    """``samples_after_pruning``: the 12 starts take their first iterations on 300 samples, the
+    survivors go on from the first pruning on 3000 fresh ones (counted in the evaluations), and
+    the known transform is recovered."""
+    truth, up = tilted_truth(theta=0.7)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(7))
+    settings = replace(SETTINGS, iterations=12, samples_per_iteration=300, samples_after_pruning=3000,
+                       prune_after=3, prune_keep=1, tolerance=0.0)
+    result = fit_query(widening, query, settings, seed=0)
+    assert result.info["iterations"] == 12
+    before = 12 * 300 * (1 + 3)  # the linearization at the starts, then 3 steps of 12 starts
+    after = 3000 * (1 + 9)  # the survivor linearized afresh, then 9 steps
+    assert result.info["decoder_evaluations"] == before + after + min(settings.eval_samples, len(query.sdf))
+    assert result.transform.s == pytest.approx(truth.s, rel=0.02)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 2.0
+    assert np.linalg.norm(result.transform.t - truth.t) < 0.03

@@ -163,6 +163,16 @@ class FitSettings:
     tolerance: float = 1e-3
     """Gauss–Newton: a hypothesis stops once an accepted step lowers its objective by less than
     this fraction."""
+    samples_after_pruning: int | None = None
+    """Gauss–Newton: from the first pruning on (with the translation search and the code
+    restarts), the survivors are solved on a fresh set of this many samples; None: the
+    ``samples_per_iteration`` samples throughout."""
+    translation_search: float = 0.0
+    """Gauss–Newton: at the first pruning, every survivor moves to the translation of lowest
+    objective on a grid across its up axis reaching this far each way (units of s0), code and
+    the rest of the pose held (forward passes on ``yaw_screen_samples`` samples); 0: none."""
+    translation_search_step: float = 0.1
+    """Step of that grid (units of s0)."""
     yaw_screen_keep: int | None = None
     """Gauss–Newton: screen the yaw starts (the θ grid) by forward passes only, at their
     initial pose and code, and solve only the best this many; None: solve them all."""
@@ -177,7 +187,7 @@ class FitSettings:
     polish_iterations: int = 0
     """Gauss–Newton: Adam iterations after the Levenberg–Marquardt solve, on the survivors, with
     ``polish_samples`` fresh samples each (the fixed sample set's draw averaged out); 0: none
-    (+0.004 on the tuning set for 21% more evaluations: no preset uses it)."""
+    (``fast-gn``: 20, docs/solver.md)."""
     polish_lr: float = 0.005
     """Adam learning rate of the polish, every free parameter."""
     polish_samples: int = 1500
@@ -227,13 +237,17 @@ and depth bounds under the floor from just below it (docs/presets.md)."""
 FAST_GAUSS_NEWTON = Preset(
     name="fast-gn",
     scan_sdf=FAST.scan_sdf,
-    fit=replace(FAST.fit, solver="gauss-newton", iterations=15, samples_per_iteration=2000,
-                prune_after=4, prune_keep=2, prune_again_after=None, code_starts=2),
+    fit=replace(FAST.fit, solver="gauss-newton", iterations=15, samples_per_iteration=1000,
+                samples_after_pruning=3000, prune_after=4, prune_keep=2, prune_again_after=None,
+                translation_search=0.3, code_starts=2, polish_iterations=20, polish_samples=1000),
 )
 """``fast``'s objective, starts and selection, minimized by Levenberg–Marquardt (fit.gauss_newton):
-the 12 yaw starts take 4 iterations, the best two go on to at most 15 (stopping once a step
-gains under 0.1%), each also restarted from the two training codes that fit best at its pose,
-on 2000 samples drawn once (docs/solver.md)."""
+the 12 yaw starts take 4 iterations on 1000 samples drawn once; the best two move to the
+translation of lowest objective on a grid across the up axis (±0.3 s0, step 0.1 s0: a partial
+scan's visible part can put the start a quarter metre off), are each also restarted from the
+two training codes that fit best there, and go on to at most 15 iterations (stopping once a
+step gains under 0.1%) on 3000 fresh samples; 20 Adam steps on 1000 fresh samples each end it
+(docs/solver.md)."""
 
 SMOKE = Preset(
     name="smoke",

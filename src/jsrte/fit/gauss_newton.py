@@ -23,6 +23,12 @@ through ∂R/∂(ψ, ρ, θ) to the angles.
 Before the solve, many yaw starts can be screened by forward passes only
 (``FitSettings.yaw_screen_keep``): each start's objective on a few hundred samples at its
 initial pose and code; the best few go on.
+
+At the first pruning, by forward passes too: every survivor can move to the translation of
+lowest objective on a grid across its up axis (``translation_search``; the damped steps do not
+cross a start a quarter metre off, the code bends to reach the points instead), and restart
+from the training codes that fit best there (``code_starts``); the survivors can then go on
+on a fresh, larger sample set (``samples_after_pruning``).
 """
 
 from __future__ import annotations
@@ -303,7 +309,7 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     moving = torch.ones(len(p), dtype=torch.bool, device=device)
     stages = pruning_stages(settings)
     iterations = 0
-    restarted = False
+    searched = False  # the translation search and the code restarts, once
     for it in tqdm(range(settings.iterations), desc="fitting", disable=not progress):
         p, base, lin, damping, moving, survivors = _drop_failed(p, base, lin, damping, moving, survivors,
                                                                 failed, batch)
@@ -315,12 +321,20 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
             lin = Linearization(lin.objective[keep], lin.hessian[keep], lin.gradient[keep])
             survivors = survivors[keep.cpu().numpy()]
             batch.keep(keep.cpu())
-        if settings.code_starts and not restarted and (it == min(stages, default=0) or not bool(moving.any())) \
-                and prior is not None and prior.codes is not None and "latent" not in fixed:
-            restarted = True
-            p, base, survivors, n = _code_restarts(decoder, p, base, survivors, batch, problem_of, prior, settings)
-            evaluations += n
-            lin = None
+        if not searched and (it == min(stages, default=0) or not bool(moving.any())):
+            searched = True
+            if settings.samples_after_pruning is not None:
+                problem = problem_of(settings.samples_after_pruning)
+                lin = None
+            if settings.translation_search and "translation" not in fixed:
+                p, n = _translation_search(decoder, p, base, problem_of, whitening, settings)
+                evaluations += n
+                lin = None
+            if settings.code_starts and prior is not None and prior.codes is not None and "latent" not in fixed:
+                p, base, survivors, n = _code_restarts(decoder, p, base, survivors, batch, problem_of, prior,
+                                                       settings)
+                evaluations += n
+                lin = None
         if lin is None:  # new hypotheses: linearize afresh, every one moving
             lin = linearize(decoder, p, base, problem, whitening, free)
             evaluations += len(p) * len(problem.sdf)
@@ -381,6 +395,43 @@ def _drop_failed(p: torch.Tensor, base: torch.Tensor, lin: Linearization, dampin
     batch.keep(keep.cpu())
     lin = Linearization(lin.objective[keep], lin.hessian[keep], lin.gradient[keep])
     return p[keep], base[keep], lin, damping[keep], moving[keep], survivors[keep.cpu().numpy()]
+
+
+def translation_offsets(settings: FitSettings) -> torch.Tensor:
+    """(N, 2) offsets (units of s0) of the translation search: a square grid of step
+    ``translation_search_step`` reaching ``translation_search`` each way, (0, 0) first."""
+    if settings.translation_search_step <= 0:
+        raise ValueError(f"translation_search_step must be positive, got {settings.translation_search_step}")
+    n = int(round(settings.translation_search / settings.translation_search_step))
+    ticks = torch.arange(-n, n + 1, dtype=torch.float64) * settings.translation_search_step
+    grid = torch.cartesian_prod(ticks, ticks)
+    return grid[torch.argsort(grid.norm(dim=1), stable=True)]
+
+
+def _translation_search(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, problem_of: ProblemDrawer,
+                        whitening: tuple[torch.Tensor, torch.Tensor] | None,
+                        settings: FitSettings) -> tuple[torch.Tensor, int]:
+    """Move every hypothesis of p (H, 7 + d) to the translation of lowest objective among
+    :func:`translation_offsets` (times s0) across its own up axis (the second column of its
+    rotation), its code and the rest of its pose held; forward passes on ``yaw_screen_samples``
+    samples. Returns p and the evaluations spent."""
+    screen = problem_of(settings.yaw_screen_samples)
+    offsets = translation_offsets(settings).to(p.device) * problem_of.s0
+    rot, _ = _rotations(p[:, 1:4], base)
+    up = rot[:, :, 1]
+    helper = torch.where(up[:, :1].abs() < 0.9, p.new_tensor([1.0, 0.0, 0.0]), p.new_tensor([0.0, 0.0, 1.0]))
+    side = torch.linalg.cross(up, helper, dim=1)
+    side = side / side.norm(dim=1, keepdim=True)
+    other = torch.linalg.cross(up, side, dim=1)
+    out = p.clone()
+    for h in range(len(p)):
+        trial = p[h].repeat(len(offsets), 1)
+        trial[:, 4:7] += offsets[:, :1] * side[h] + offsets[:, 1:] * other[h]
+        with torch.no_grad():
+            scores = linearize(decoder, trial, base[h].expand(len(trial), 3, 3), screen, whitening, None).objective
+        scores = torch.where(torch.isfinite(scores), scores, torch.full_like(scores, float("inf")))
+        out[h] = trial[int(torch.argmin(scores))]  # ties (argmin: first) keep the start
+    return out, len(p) * len(offsets) * len(screen.sdf)
 
 
 def _code_restarts(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, survivors: np.ndarray,

@@ -59,6 +59,22 @@ def write_with(path: str | Path, writer: Callable[[Path], None]) -> None:
         writer(tmp)
 
 
+def write_csv_atomic(path: str | Path, rows: list[dict]) -> None:
+    """Write ``rows`` (dicts) as a CSV file with a header, atomically; the columns are every
+    key of the rows, in first-seen order."""
+    import csv
+
+    keys = list(dict.fromkeys(k for row in rows for k in row))
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=keys)
+            writer.writeheader()
+            writer.writerows(rows)
+
+    write_with(path, write)
+
+
 def _json_default(obj: Any) -> Any:
     import numpy as np
 

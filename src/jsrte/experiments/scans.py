@@ -8,14 +8,13 @@ scan is reported). Shapes are from the evaluation seed set: never trained on.
 
 from __future__ import annotations
 
-import csv
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from jsrte.atomic import write_bytes_atomic, write_with
+from jsrte.atomic import write_bytes_atomic, write_csv_atomic
 from jsrte.errors import JsrteError
 from jsrte.metrics.surface import fscore
 from jsrte.result import FitResult
@@ -144,7 +143,7 @@ def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *,
             figures.append(_figure(case, _scan_points(case), results, methods, out))
         if html is not None:
             html.add(case, case_rows, results)
-        _write_rows(rows, out / "results.csv")
+        write_csv_atomic(out / "results.csv", rows)
 
     bar = tqdm(total=len(cases), desc="scans", disable=not progress)
     serial = cases if jobs <= 1 else cases[:1]
@@ -323,18 +322,6 @@ def _figure(case: ScanCase, scan_points: np.ndarray, results: dict, methods: lis
     return path
 
 
-def _write_rows(rows: list[dict], path: Path) -> None:
-    keys = list(dict.fromkeys(k for row in rows for k in row))
-
-    def write(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=keys)
-            writer.writeheader()
-            writer.writerows(rows)
-
-    write_with(path, write)
-
-
 def summarize(rows: list[dict], methods: list[str], category: str | None = None) -> list[dict]:
     """Per method: mean F@5% vs truth and vs scan (failures count as 0), failures, mean time,
     and with the class left to the fit (``fitted_class``), the share of scans given ``category``."""
@@ -373,7 +360,7 @@ def _median(rows: list[dict], key: str) -> float | None:
 def _write_table(rows: list[dict], methods: list[str], out: Path, *, n_scans: int,
                  category: str | None = None) -> None:
     table = summarize(rows, methods, category)
-    _write_rows(table, out / "table.csv")
+    write_csv_atomic(out / "table.csv", table)
     lines = [f"Scan experiment: {n_scans} scans of held-out shapes (evaluation seed set, never trained on). "
              "Failures count as F = 0.", "",
              "| | " + " | ".join(t["method"] for t in table) + " |",

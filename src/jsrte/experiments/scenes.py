@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from jsrte.atomic import write_bytes_atomic, write_json_atomic, write_with
+from jsrte.atomic import write_bytes_atomic, write_csv_atomic, write_json_atomic
 from jsrte.errors import JsrteError
 from jsrte.experiments.scene_scoring import (
     FURNITURE,
@@ -230,7 +230,7 @@ def run_scenes(config: ScenesConfig, out: Path, *, jobs: int = 1, threads: int |
     for room, room_rows in _rooms(todo, config, out, jobs, threads):
         rows = [r for r in rows if r["room"] != room] + room_rows
         rows.sort(key=lambda r: r["room"])
-        _write_csv(rows, out / OBJECTS_NAME)
+        write_csv_atomic(out / OBJECTS_NAME, rows)
         log(_room_line(room, room_rows))
     rows = [r for r in rows if r["room"] in set(config.indices)]
     summary = summarize(rows)
@@ -332,22 +332,10 @@ def summary_markdown(summary: dict, table: dict, config: ScenesConfig) -> str:
 def _write_summary(rows: list[dict], summary: dict, table: dict, config: ScenesConfig, out: Path) -> list[Path]:
     rooms = list({r["room"]: {k: r[k] for k in ("room", "seed", "scene_seconds", "objects_found", "scene_error")}
                   for r in rows}.values())
-    _write_csv(rooms, out / ROOMS_NAME)
-    _write_csv([summary], out / SUMMARY_CSV)
+    write_csv_atomic(out / ROOMS_NAME, rooms)
+    write_csv_atomic(out / SUMMARY_CSV, [summary])
     write_bytes_atomic(out / SUMMARY_MD, summary_markdown(summary, table, config).encode())
     return [out / ROOMS_NAME, out / SUMMARY_CSV, out / SUMMARY_MD]
-
-
-def _write_csv(rows: list[dict], path: Path) -> None:
-    keys = list(dict.fromkeys(k for row in rows for k in row))
-
-    def write(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=keys)
-            writer.writeheader()
-            writer.writerows(rows)
-
-    write_with(path, write)
 
 
 def _resumed_rows(config: ScenesConfig, out: Path) -> list[dict]:

@@ -83,6 +83,8 @@ class SegmentSettings:
     wall_min_height_m: float = 0.85
     """A wall's points rise this far (2nd to 98th percentile): walls are seen from the floor to
     above most furniture; a headboard or a table's side is lower."""
+    wall_normals_agree: float = 0.8
+    """Without viewpoints, this share of a wall's points' normals face one side of it, the room's."""
     wall_one_side: float = 0.95
     """At least this share of the other points (off the plane) lie on one side of a wall."""
     cluster_eps_factor: float = 4.0
@@ -265,7 +267,7 @@ def find_walls(points: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
         normal, offset = _refit_plane(points[remaining], np.asarray(model[:3]), float(-model[3]), s.wall_distance_m)
         distance = points @ normal - offset
         near = np.abs(distance[remaining]) < s.wall_distance_m
-        room_sides = _sensor_sides(normal, offset, remaining[near], viewpoints, normals)
+        room_sides = _sensor_sides(normal, offset, remaining[near], viewpoints, normals, s)
         if abs(float(normal @ up)) < across_tolerance and _is_wall(points[remaining[near]], distance, normal,
                                                                    up, ~is_wall, room_sides, s):
             plane = np.abs(distance) < _wall_band(distance, s)
@@ -288,12 +290,8 @@ def _wall_band(distance: np.ndarray, s: SegmentSettings) -> float:
     return float(np.clip(3.0 * sigma, s.wall_distance_m, s.wall_band_max_m))
 
 
-WALL_NORMALS_AGREE = 0.8
-"""This share of a wall's points' normals face one side of it, the room's."""
-
-
 def _sensor_sides(normal: np.ndarray, offset: float, inliers: np.ndarray, viewpoints: np.ndarray | None,
-                  normals: np.ndarray | None) -> set[int]:
+                  normals: np.ndarray | None, s: SegmentSettings) -> set[int]:
     """The sides (+1: the one ``normal`` (3,) points to, -1: the other) of the plane
     ``normal . x = offset`` the room may be on, as the sensor tells it: every one of the
     ``viewpoints`` (k, 3) is in the room (none on both sides: no wall), else the plane's points
@@ -304,7 +302,7 @@ def _sensor_sides(normal: np.ndarray, offset: float, inliers: np.ndarray, viewpo
         return sides if len(sides) == 1 else set()
     if normals is not None and len(inliers):
         facing = float((normals[inliers] @ normal > 0).mean())
-        return {1} if facing >= WALL_NORMALS_AGREE else {-1} if facing <= 1.0 - WALL_NORMALS_AGREE else set()
+        return {1} if facing >= s.wall_normals_agree else {-1} if facing <= 1.0 - s.wall_normals_agree else set()
     return {1, -1}
 
 

@@ -156,3 +156,12 @@ def test_bad_input_is_a_one_line_error(tmp_path, run_cli):
         assert not (tmp_path / "new").exists()
     code, _, err = run_cli(["experiment", "scenes", "--out", str(tmp_path / "none"), "--resume"])
     assert code != 0 and "resume" in err
+
+
+def test_resuming_a_damaged_run_is_a_one_line_error(tmp_path, run_cli):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("{not json")
+    code, _, err = run_cli(["experiment", "scenes", "--out", str(run), "--resume", "--rooms", "1"])
+    assert code != 0 and "config.json" in err and "unreadable" in err and err.strip().count("\n") == 0
+    assert (run / "config.json").read_text() == "{not json"

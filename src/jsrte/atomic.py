@@ -1,4 +1,5 @@
-"""Atomic file writing: a crash never leaves a half-written file that looks whole."""
+"""Atomic file writing: a crash never leaves a half-written file that looks whole; and reading
+back, typed, the CSV tables written here."""
 
 from __future__ import annotations
 
@@ -73,6 +74,32 @@ def write_csv_atomic(path: str | Path, rows: list[dict]) -> None:
             writer.writerows(rows)
 
     write_with(path, write)
+
+
+def read_csv_rows(path: str | Path) -> list[dict]:
+    """The rows of a CSV file written by :func:`write_csv_atomic`, each cell typed back by
+    :func:`csv_cell`; an unreadable file is a JsrteError naming it."""
+    import csv
+
+    try:
+        with open(path, newline="") as f:
+            return [{k: csv_cell(v) for k, v in row.items()} for row in csv.DictReader(f)]
+    except (OSError, UnicodeDecodeError, csv.Error) as error:
+        raise JsrteError(f"unreadable table ({error})", path) from error
+
+
+def csv_cell(text: str | None) -> object:
+    """A CSV cell back as written: None (empty or missing), bool, int, float or text."""
+    if text is None or text == "":
+        return None
+    if text in ("True", "False"):
+        return text == "True"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 def _json_default(obj: Any) -> Any:

@@ -13,7 +13,6 @@ seed ``s * 100003 + i`` alone: the same room index and seed always give the same
 
 from __future__ import annotations
 
-import csv
 import json
 import time
 from collections.abc import Callable
@@ -23,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from jsrte.atomic import write_bytes_atomic, write_csv_atomic, write_json_atomic
+from jsrte.atomic import read_csv_rows, write_bytes_atomic, write_csv_atomic, write_json_atomic
 from jsrte.errors import JsrteError
 from jsrte.experiments.scene_scoring import (
     FURNITURE,
@@ -342,7 +341,10 @@ def _resumed_rows(config: ScenesConfig, out: Path) -> list[dict]:
     """The rows of objects.csv in ``out`` (typed), after checking config.json matches ``config``."""
     path = out / CONFIG_NAME
     if path.is_file():
-        recorded = json.loads(path.read_text())
+        try:
+            recorded = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+            raise JsrteError(f"unreadable ({error})", path) from error
         keep = {k: v for k, v in recorded.items() if k not in ("rooms", "first")}
         mine = {k: v for k, v in config.to_json().items() if k not in ("rooms", "first")}
         if keep != mine:
@@ -351,20 +353,7 @@ def _resumed_rows(config: ScenesConfig, out: Path) -> list[dict]:
                              "--overwrite", out)
     if not (out / OBJECTS_NAME).is_file():
         return []
-    with open(out / OBJECTS_NAME, newline="") as f:
-        return [{k: _typed(v) for k, v in row.items()} for row in csv.DictReader(f)]
-
-
-def _typed(text: str) -> object:
-    """A CSV cell back as None, int, float or text."""
-    if text == "":
-        return None
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
+    return read_csv_rows(out / OBJECTS_NAME)
 
 
 # --- figure and report ------------------------------------------------------------------------

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 import trimesh
 
-from jsrte.atomic import write_bytes_atomic, write_with
+from jsrte.atomic import read_csv_rows, write_bytes_atomic, write_with
 from jsrte.errors import JsrteError
 from jsrte.experiments.settings import SCENARIOS, SYNTHETIC_FSCORE_GOOD, SyntheticScenario, SyntheticTruth
 from jsrte.fit.optimize import optimize
@@ -437,26 +437,13 @@ def resumable_runs(out: Path, identity: dict, inits: int) -> list[dict]:
     runs_path = out / RUNS_NAME
     if not runs_path.is_file() or runs_path.stat().st_size == 0:
         return []
+    rows = read_csv_rows(runs_path)
     try:
-        with open(runs_path, newline="") as fh:
-            rows = [{k: _parse_cell(v) for k, v in row.items()} for row in csv.DictReader(fh)]
         keys = [(r["category"], r["shape_index"], r["scenario"]) for r in rows]
-    except (OSError, UnicodeDecodeError, csv.Error, KeyError) as error:
-        raise JsrteError(f"unreadable runs table ({error!r})", runs_path) from error
+    except KeyError as error:
+        raise JsrteError(f"unreadable runs table (no column {error})", runs_path) from error
     counts = {key: keys.count(key) for key in set(keys)}
     return [r for r, key in zip(rows, keys, strict=True) if counts[key] == inits]
-
-
-def _parse_cell(text: str) -> object:
-    """A runs.csv cell back to what was written: int, float, bool or str."""
-    if text in ("True", "False"):
-        return text == "True"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
 
 
 def _classes(report: SyntheticReport) -> str:

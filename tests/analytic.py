@@ -57,6 +57,22 @@ class WideningLShapeDecoder(nn.Module):
                              leg)
 
 
+class TableDecoder(nn.Module):
+    """f(x, z): a rectangular top on four legs, ignoring z: the same shape after half a turn about
+    the up axis (y), another after a quarter turn."""
+
+    def __init__(self, latent_size: int = 4) -> None:
+        super().__init__()
+        self.config = DecoderConfig(latent_size=latent_size, hidden=8, depth=2, skip_layer=1)
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        sdf = box_sdf(points, (0.0, 0.3, 0.0), (0.8, 0.04, 0.45))
+        for x in (-0.7, 0.7):
+            for z in (-0.35, 0.35):
+                sdf = torch.minimum(sdf, box_sdf(points, (x, -0.15, z), (0.04, 0.45, 0.04)))
+        return sdf
+
+
 class SphereDecoder(nn.Module):
     """f(x, z) = |x| − (r0 + z_0 + z_1): a sphere whose radius two latent directions change alike."""
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from analytic import LShapeDecoder
+from analytic import LShapeDecoder, TableDecoder
 from jsrte.fit.optimize import SdfQuery
 from jsrte.fit.quality import (
     FREE_SPACE_MIN_M,
@@ -17,7 +17,10 @@ from jsrte.fit.quality import (
     fitted_sdf,
     flag_of,
     latent_distance,
+    SAME_SHAPE_DISTANCE,
     loss_margin,
+    pose_distance,
+    surface_points,
     quality_columns,
 )
 from jsrte.fit.solve import fit_query
@@ -118,6 +121,29 @@ def test_loss_margin_compares_the_winner_with_the_best_other_pose():
     assert loss_margin(result) == pytest.approx(0.5)
     result.hypotheses = hypotheses[:2]
     assert loss_margin(result) is None
+
+
+def _turned(pose: Sim3, angle: float) -> Sim3:
+    """``pose`` turned by ``angle`` (radians) about its own up axis, its centre kept."""
+    return Sim3(pose.s, pose.R @ axis_angle_matrix(np.array([0.0, 1.0, 0.0]), angle), pose.t)
+
+
+def test_a_symmetry_of_the_shape_is_no_other_pose():
+    """A table turned half a turn is the same table: no rival, no margin; a quarter turn, or an
+    L-shape turned half a turn, is another shape there and its loss is the margin."""
+    winner = Sim3(1.7, axis_angle_matrix(np.array([0.0, 1.0, 0.0]), 0.4), np.array([2.0, 0.7, -1.0]))
+    latent = np.zeros(4)
+    for decoder, angle, same in ((TableDecoder(), np.pi, True), (TableDecoder(), np.pi / 2, False),
+                                 (LShapeDecoder(), np.pi, False)):
+        surface = surface_points(decoder, latent, np.random.default_rng(0))
+        distance = pose_distance(decoder, latent, winner, _turned(winner, angle), surface)
+        assert (distance < SAME_SHAPE_DISTANCE) == same, (type(decoder).__name__, angle, distance)
+        hypotheses = [HypothesisReport(0, {}, 0.010, transform=winner),
+                      HypothesisReport(1, {}, 0.0105, transform=_turned(winner, angle))]
+        result = FitResult("jsrte", winner, latent, None, 0.010, {}, hypotheses=hypotheses)
+        surface_scan = winner.apply(surface[:500])
+        q = assess(decoder, result, surface=surface_scan, points=surface_scan, sdf=np.zeros(len(surface_scan)))
+        assert q["loss_margin_rel"] == (None if same else pytest.approx(0.05))
 
 
 def test_an_ambiguous_pose_is_doubtful_even_when_the_points_fit():

@@ -8,6 +8,7 @@ sphere). docs/confidence.md gives the rule's precision and recall and how it was
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,14 @@ OTHER_POSE_DEG = 30.0
 """A hypothesis is at a different pose than the winner when its rotation differs by more than
 this, or its centre by more than ``OTHER_POSE_SHIFT`` times the scale."""
 OTHER_POSE_SHIFT = 0.2
+SAME_SHAPE_DISTANCE = 0.025
+"""Another pose is the winner's shape again (a symmetry: a table turned half a turn) when the
+winner's shape placed there lies within this many scales of the winner's surface (robust mean
+distance at points on that surface); such a pose is no rival and its loss no margin."""
+SURFACE_BAND = 0.02
+"""Points within this canonical distance of the winner's surface stand for the surface."""
+SURFACE_PROBES = 20_000
+"""Uniform points in the canonical unit ball, of which those in the band are kept."""
 MAX_POINTS = 20_000
 """At most this many surface points and as many free-space samples are evaluated (a random subset)."""
 
@@ -84,7 +93,7 @@ def assess(decoder: Decoder, result: FitResult, *, surface: np.ndarray, points: 
     else:
         out["free_space_violation"] = None
     out["free_space_samples"] = len(free)
-    out["loss_margin_rel"] = loss_margin(result)
+    out["loss_margin_rel"] = loss_margin(result, symmetric=_symmetry_test(decoder, result, rng))
     if codes is not None:
         out.update(latent_distance(result.latent, codes))
     return out
@@ -106,11 +115,13 @@ def _point_measures(distance: np.ndarray, scale: float) -> dict[str, Any]:
             "mean_abs_sdf_m": robust, "mean_abs_sdf_rel": robust / scale}
 
 
-def loss_margin(result: FitResult) -> float | None:
+def loss_margin(result: FitResult, symmetric: Callable[[Sim3], bool] | None = None) -> float | None:
     """(loss of the best surviving hypothesis at another pose − the winner's loss) / the winner's
-    loss; None without such a hypothesis. Small or negative: another pose explains the data as well."""
+    loss; None without such a hypothesis. Small or negative: another pose explains the data as well.
+    A pose at which ``symmetric`` says the winner's shape looks the same is not another pose."""
     winner = result.transform
-    others = [h.loss for h in result.hypotheses if _other_pose(h, winner)]
+    others = [h.loss for h in result.hypotheses
+              if _other_pose(h, winner) and not (symmetric is not None and symmetric(h.transform))]
     if not others or not np.isfinite(result.loss) or result.loss <= 0:
         return None
     return float((min(others) - result.loss) / result.loss)
@@ -122,6 +133,37 @@ def _other_pose(h: HypothesisReport, winner: Sim3) -> bool:
     turned = rotation_angle_deg(h.transform.R, winner.R) > OTHER_POSE_DEG
     shifted = np.linalg.norm(h.transform.t - winner.t) > OTHER_POSE_SHIFT * winner.s
     return bool(turned or shifted)
+
+
+def pose_distance(decoder: Decoder, latent: np.ndarray, winner: Sim3, other: Sim3, surface: np.ndarray) -> float:
+    """How different the winner's shape placed at ``other`` is from itself placed at ``winner``,
+    near its surface: the robust mean (over ``TRIM`` of the points) of the difference of their
+    SDFs (scan units) at the winner's surface points ``surface`` (k, 3; canonical), divided by
+    the winner's scale. 0 when ``other`` is a symmetry of the shape."""
+    placed = winner.apply(surface)
+    difference = np.abs(fitted_sdf(decoder, latent, other, placed) - fitted_sdf(decoder, latent, winner, placed))
+    kept = np.sort(difference)[: max(1, int(np.ceil(TRIM * len(difference))))]
+    return float(kept.mean() / winner.s)
+
+
+def surface_points(decoder: Decoder, latent: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Points (k, 3; canonical) within ``SURFACE_BAND`` of the shape's surface: of
+    ``SURFACE_PROBES`` uniform points in the unit ball, those whose |SDF| is under the band."""
+    probes = rng.normal(size=(SURFACE_PROBES, 3))
+    probes *= (rng.uniform(size=(SURFACE_PROBES, 1)) ** (1 / 3)) / np.linalg.norm(probes, axis=1, keepdims=True)
+    sdf = fitted_sdf(decoder, latent, Sim3(1.0, np.eye(3), np.zeros(3)), probes)
+    return probes[np.abs(sdf) < SURFACE_BAND]
+
+
+def _symmetry_test(decoder: Decoder, result: FitResult, rng: np.random.Generator) -> Callable[[Sim3], bool] | None:
+    """``other pose -> bool``: whether the winner's shape looks the same there (None without a
+    surface to compare: every pose then counts as another)."""
+    if not any(_other_pose(h, result.transform) for h in result.hypotheses):
+        return None
+    surface = surface_points(decoder, result.latent, rng)
+    if len(surface) < 10:
+        return None
+    return lambda other: pose_distance(decoder, result.latent, result.transform, other, surface) < SAME_SHAPE_DISTANCE
 
 
 def latent_distance(latent: np.ndarray, codes: np.ndarray) -> dict[str, float | None]:

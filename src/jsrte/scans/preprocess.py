@@ -2,7 +2,8 @@
 
 Floor plane by RANSAC (its normal is the up axis, the rotation axis ω), floor removal, the
 object's clusters above the floor, statistical outlier removal, hidden point removal (Katz et
-al. 2007) when the viewpoints are known, and outward normals. All with Open3D; lengths in
+al. 2007) when the viewpoints are known, and outward normals. Planes by a seeded RANSAC
+(jsrte.geometry.planes: the same seed, the same floor), the rest with Open3D; lengths in
 scan units (metres).
 """
 
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from jsrte.errors import JsrteError
+from jsrte.geometry.planes import ransac_plane, refit_plane
 from jsrte.scans.io import ScanCloud
 from jsrte.scans.segment import ClassShape, Segmentation, SegmentSettings, segment_objects
 from jsrte.timing import timed_stage
@@ -128,7 +130,7 @@ def segment_floor(
     viewpoints: np.ndarray | None = None, distance_m: float | None = None,
     settings: PrepareSettings = PrepareSettings(),
 ) -> Floor:
-    """Find the floor: the biggest RANSAC plane (Open3D) that is plausibly a floor.
+    """Find the floor: the biggest RANSAC plane (:func:`jsrte.geometry.planes.ransac_plane`) that is plausibly a floor.
 
     A plausible floor holds at least ``floor_min_fraction`` of the points, has (almost) all
     other points on one side, surrounds the object, and was seen from the object's side
@@ -140,15 +142,13 @@ def segment_floor(
     Parameters
     ----------
     points : (n, 3) float
-    rng : seeds Open3D's RANSAC
+    rng : seeds the RANSAC
     normals : (n, 3) float, sensor-facing normals if known
     viewpoints : (k, 3) float, camera centres if known
     distance_m : inlier distance (default ``settings.floor_distance_m``)
 
     Raises ``JsrteError`` saying no floor was found (and suggesting ``--up``) otherwise.
     """
-    import open3d as o3d
-
     points = np.asarray(points, dtype=np.float64)
     distance = settings.floor_distance_m if distance_m is None else distance_m
     if len(points) < 3:
@@ -159,13 +159,10 @@ def segment_floor(
     for _ in range(settings.floor_candidates):
         if len(remaining) < 3:
             break
-        o3d.utility.random.seed(int(rng.integers(2**31)))
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[remaining]))
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-            model, found = cloud.segment_plane(distance, 3, settings.floor_ransac_iterations)
+        normal, offset, found = ransac_plane(points[remaining], distance, settings.floor_ransac_iterations, rng)
         if len(found) < 3:
             break
-        normal, offset = _refit_plane(points, np.asarray(model[:3]), float(-model[3]), distance)
+        normal, offset = refit_plane(points, normal, offset, distance)
         floor, reason = _as_floor(points, normal, offset, distance, settings, walk_up=walk_up)
         if floor is not None:
             reason = _sensor_side_objection(floor, points, normals, viewpoints)
@@ -177,22 +174,6 @@ def segment_floor(
         remaining = remaining[~near]
     detail = "; ".join(reasons) if reasons else "no plane"
     raise JsrteError(f"no floor found ({detail}); {UP_HINT}")
-
-
-def _refit_plane(points: np.ndarray, normal: np.ndarray, offset: float, distance: float,
-                 rounds: int = 3) -> tuple[np.ndarray, float]:
-    """Least-squares plane through the inliers of ``normal . x = offset``, iterated."""
-    n = normal / np.linalg.norm(normal)
-    d = offset / np.linalg.norm(normal)
-    for _ in range(rounds):
-        inliers = points[np.abs(points @ n - d) < distance]
-        if len(inliers) < 3:
-            break
-        centre = inliers.mean(0)
-        _, _, vt = np.linalg.svd(inliers - centre, full_matrices=False)
-        n = vt[2] if vt[2] @ n >= 0 else -vt[2]
-        d = float(centre @ n)
-    return n, d
 
 
 def _sensor_side_objection(floor: Floor, points: np.ndarray, normals: np.ndarray | None,

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from jsrte.errors import JsrteError
+from jsrte.geometry.planes import ransac_plane, refit_plane
 
 PROFILE_BINS = 8
 """Bins of a height profile (share of the points at each fraction of the object's height)."""
@@ -238,7 +239,7 @@ def segment_objects(
 def find_walls(points: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
                viewpoints: np.ndarray | None = None, normals: np.ndarray | None = None,
                settings: SegmentSettings = SegmentSettings()) -> tuple[np.ndarray, list[dict[str, Any]]]:
-    """Walls among ``points`` (n, 3): planes found by RANSAC (Open3D), biggest first, that are
+    """Walls among ``points`` (n, 3): planes found by RANSAC (``ransac_plane``), biggest first, that are
     vertical (``up`` (3,)), span more than ``wall_min_span_m``, rise ``wall_min_height_m`` and
     have (almost) every other point on one side: the room's. A wall faces the room, where the
     sensor and the furniture are; a face of a piece of furniture (a bed's side, a table's apron)
@@ -246,10 +247,6 @@ def find_walls(points: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
     ``viewpoints`` (k, 3), all of them, else the one the plane's points' ``normals`` (n, 3) face
     (sensor-facing, as depth scans give them); with neither, either side.
     Returns the wall mask (n,) bool and each wall's description."""
-    import open3d as o3d
-
-    from jsrte.scans.preprocess import _refit_plane
-
     s = settings
     is_wall = np.zeros(len(points), dtype=bool)
     walls: list[dict[str, Any]] = []
@@ -258,13 +255,10 @@ def find_walls(points: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
     for _ in range(s.wall_max_planes):
         if len(remaining) < s.wall_min_points:
             break
-        o3d.utility.random.seed(int(rng.integers(2**31)))
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[remaining]))
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-            model, found = cloud.segment_plane(s.wall_distance_m, 3, s.wall_ransac_iterations)
+        normal, offset, found = ransac_plane(points[remaining], s.wall_distance_m, s.wall_ransac_iterations, rng)
         if len(found) < s.wall_min_points:
             break
-        normal, offset = _refit_plane(points[remaining], np.asarray(model[:3]), float(-model[3]), s.wall_distance_m)
+        normal, offset = refit_plane(points[remaining], normal, offset, s.wall_distance_m)
         distance = points @ normal - offset
         near = np.abs(distance[remaining]) < s.wall_distance_m
         room_sides = _sensor_sides(normal, offset, remaining[near], viewpoints, normals, s)

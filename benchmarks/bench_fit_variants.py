@@ -23,6 +23,9 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+PARTS = ("yaw screening", "starts", "translation search", "code scoring", "survivors", "polish", "final losses")
+"""The parts of a Levenberg–Marquardt solve whose decoder evaluations are reported apart."""
+
 
 def settings_from(pairs: list[str], preset: str = "fast"):
     from jsrte.presets import get_preset
@@ -56,6 +59,7 @@ def main() -> None:
     from jsrte.fit.query import read_query_file
     from jsrte.fit.solve import fit_query
     from jsrte.model.registry import resolve_model
+    from jsrte.timing import profiling
 
     torch.set_num_threads(args.threads)
     settings = settings_from(args.changes, args.preset)
@@ -72,7 +76,8 @@ def main() -> None:
             continue
         query = read_query_file(folder / f"{name}.npz")
         started = time.perf_counter()
-        result = fit_query(model, query, settings, seed=args.seed)
+        with profiling() as profile:
+            result = fit_query(model, query, settings, seed=args.seed)
         seconds = time.perf_counter() - started
         score = score_against_truth(result, truth, rng=np.random.default_rng(args.seed))
         rows.append({"scan": name, "fscore": round(score["fscore"], 4),
@@ -81,13 +86,21 @@ def main() -> None:
                      "translation_error": round(score["translation_error"], 4), "seconds": round(seconds, 1),
                      "optimize_s": result.timing["optimize"], "iterations": result.info["iterations"],
                      "decoder_evaluations": result.info["decoder_evaluations"],
-                     "criterion": round(result.criterion["value"], 4)})
+                     "criterion": round(result.criterion["value"], 4),
+                     **{f"ev_{part.replace(' ', '_')}": result.info.get("decoder_evaluations_by_part", {}).get(part, 0)
+                        for part in PARTS},
+                     "ev_meshing": profile.evaluations.get("meshing", 0),
+                     "ev_quality": profile.evaluations.get("quality", 0)})
         print(rows[-1], flush=True)
         with open(args.out, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))
             writer.writeheader()
             writer.writerows(rows)
     scores = [r["fscore"] for r in rows]
+    parts = {part: statistics.mean(r[f"ev_{part.replace(' ', '_')}"] for r in rows)
+             for part in (*PARTS, "meshing", "quality")}
+    if any(parts.values()):
+        print("mean evaluations by part: " + ", ".join(f"{k} {v:,.0f}" for k, v in parts.items()))
     print(f"{len(rows)} scans: mean F@5% {statistics.mean(scores):.3f}, median {statistics.median(scores):.3f}, "
           f"mean evaluations {statistics.mean(r['decoder_evaluations'] for r in rows):,.0f}, "
           f"mean optimize {statistics.mean(r['optimize_s'] for r in rows):.1f} s; "

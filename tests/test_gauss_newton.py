@@ -300,6 +300,34 @@ def test_code_restarts_leave_a_local_minimum_of_the_code_for_the_training_code_b
     assert out.evaluations >= 5 * 300  # every training code screened at the pose
 
 
+def test_code_copies_pruned_early_still_leave_the_local_minimum_and_the_parts_add_up():
+    """The two-basin sphere again, the training codes scored on their own 50 samples and only the
+    best copy going on after 2 iterations: the true radius is still reached, and the decoder
+    evaluations split by part add up (3 hypotheses linearized and stepped twice, then one)."""
+    decoder = _TwoBasinSphereDecoder()
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(1500, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    points = directions * rng.uniform(0.1, 0.8, size=(1500, 1))
+    query = SdfQuery(points, np.linalg.norm(points, axis=1) - 0.3, directions * 0.3)
+    prior = LatentPrior.of_codes(np.array([[-2.0], [-1.0], [0.0], [1.0], [3.5]]), shrinkage=0.01)
+    start = Init(scale=1.0, psi=0.0, rho=0.0, theta=0.0, translation=np.zeros(3))
+    settings = replace(SETTINGS, latent_space="whitened", prune_after=None, iterations=12, clamp_canonical=None,
+                       yaw_screen_samples=300, code_starts=2, code_screen_samples=50, code_starts_prune_after=2,
+                       tolerance=0.0)
+    out = solve(decoder, query, [start], settings, fixed=frozenset({"scale", "psi", "rho", "theta", "translation"}),
+                generator=torch.Generator().manual_seed(0), prior=prior)
+    c = float(out.batch.latent[0, 0].detach())
+    assert 0.5 + 0.1 * c**2 - 0.01 * c**4 == pytest.approx(0.3, abs=0.005)
+    assert len(out.survivors) == 1 and out.survivors.tolist() == [0]
+    parts = out.evaluation_parts
+    n = parts["starts"]  # the start linearized once before the restarts
+    assert parts["code scoring"] == 5 * 50
+    assert parts["survivors"] == 3 * n * (1 + 2) + n * (12 - 2)
+    assert parts["final losses"] == min(settings.eval_samples, len(query.sdf))
+    assert sum(parts.values()) == out.evaluations
+
+
 def test_polish_takes_adam_steps_on_fresh_samples_and_lowers_the_objective(widening, widened_mesh):
     """The Adam update written out equals torch.optim.Adam's; a polish from a slightly wrong pose
     lowers the objective and moves the pose towards the truth."""

@@ -184,6 +184,12 @@ class FitSettings:
     ``yaw_screen_samples`` samples), as more hypotheses; only the copy with the lowest objective
     of each survivor is kept at the end. Levenberg–Marquardt goes to the nearest minimum of the
     code; on 4 of 20 tuning scans that was a local one (docs/solver.md). 0: none."""
+    code_screen_samples: int | None = None
+    """Samples on which the training codes are scored at each survivor's pose; None:
+    ``yaw_screen_samples``."""
+    code_starts_prune_after: int | None = None
+    """Gauss–Newton: this many iterations after the code restarts, only the copy with the lowest
+    objective of each survivor goes on; None: every copy is solved to the end."""
     polish_iterations: int = 0
     """Gauss–Newton: Adam iterations after the Levenberg–Marquardt solve, on the survivors, with
     ``polish_samples`` fresh samples each (the fixed sample set's draw averaged out); 0: none
@@ -239,15 +245,18 @@ FAST_GAUSS_NEWTON = Preset(
     scan_sdf=FAST.scan_sdf,
     fit=replace(FAST.fit, solver="gauss-newton", iterations=15, samples_per_iteration=1000,
                 samples_after_pruning=3000, prune_after=4, prune_keep=2, prune_again_after=None,
-                translation_search=0.3, code_starts=2, polish_iterations=20, polish_samples=1000),
+                translation_search=0.3, yaw_screen_samples=200, code_starts=2, code_screen_samples=50,
+                code_starts_prune_after=1, polish_iterations=20, polish_samples=500, eval_samples=4000),
 )
 """``fast``'s objective, starts and selection, minimized by Levenberg–Marquardt (fit.gauss_newton):
 the 12 yaw starts take 4 iterations on 1000 samples drawn once; the best two move to the
-translation of lowest objective on a grid across the up axis (±0.3 s0, step 0.1 s0: a partial
-scan's visible part can put the start a quarter metre off), are each also restarted from the
-two training codes that fit best there, and go on to at most 15 iterations (stopping once a
-step gains under 0.1%) on 3000 fresh samples; 20 Adam steps on 1000 fresh samples each end it
-(docs/solver.md)."""
+translation of lowest objective on a grid across the up axis (±0.3 s0, step 0.1 s0, scored on
+200 samples: a partial scan's visible part can put the start a quarter metre off), are each
+also restarted from the two training codes that fit best there (all training codes scored on
+50 samples), and go on on 3000 fresh samples, only the best of each start's three copies after
+one iteration, to at most 15 iterations in all (stopping once a step gains under 0.1%); 20 Adam
+steps on 500 fresh samples each end it, and the winner is the lowest loss on 4000 samples:
+about 0.21 M decoder evaluations in the solve (docs/solver.md)."""
 
 SMOKE = Preset(
     name="smoke",

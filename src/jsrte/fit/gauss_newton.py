@@ -291,11 +291,15 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     survivors = np.arange(len(inits))
     pruned: dict[int, float] = {}
     failed: dict[int, str] = {}
-    evaluations = 0
+    parts: dict[str, int] = {}
+
+    def count(part: str, n: int) -> None:
+        parts[part] = parts.get(part, 0) + n
+
     if settings.yaw_screen_keep is not None and len(inits) > settings.yaw_screen_keep:
         screen = problem_of(settings.yaw_screen_samples)
         scores, keep = screen_yaws(decoder, p, batch.base_rotation, screen, whitening, settings.yaw_screen_keep)
-        evaluations += len(p) * len(screen.sdf)
+        count("yaw screening", len(p) * len(screen.sdf))
         kept = set(keep.tolist())
         pruned.update({int(survivors[i]): float(scores[i]) for i in range(len(p)) if i not in kept})
         batch.keep(keep.cpu())
@@ -304,12 +308,13 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     free = free_columns(fixed, decoder.config.latent_size).to(device)
     base = batch.base_rotation
     lin = linearize(decoder, p, base, problem, whitening, free)
-    evaluations += len(p) * len(problem.sdf)
+    count("starts", len(p) * len(problem.sdf))
     damping = torch.full((len(p),), settings.damping, dtype=torch.float64, device=device)
     moving = torch.ones(len(p), dtype=torch.bool, device=device)
     stages = pruning_stages(settings)
     iterations = 0
     searched = False  # the translation search and the code restarts, once
+    restarted_at: int | None = None  # the iteration of the code restarts
     for it in tqdm(range(settings.iterations), desc="fitting", disable=not progress):
         p, base, lin, damping, moving, survivors = _drop_failed(p, base, lin, damping, moving, survivors,
                                                                 failed, batch)
@@ -317,10 +322,12 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
             keep = torch.argsort(lin.objective)[: stages[it]]
             pruned.update({int(survivors[i]): float(lin.objective[i]) for i in range(len(p))
                            if i not in set(keep.tolist())})
-            p, base, damping, moving = p[keep], base[keep], damping[keep], moving[keep]
-            lin = Linearization(lin.objective[keep], lin.hessian[keep], lin.gradient[keep])
-            survivors = survivors[keep.cpu().numpy()]
-            batch.keep(keep.cpu())
+            p, base, lin, damping, moving, survivors = _subset(keep, p, base, lin, damping, moving, survivors, batch)
+        after = settings.code_starts_prune_after
+        if after is not None and restarted_at is not None and it == restarted_at + after \
+                and len(set(survivors.tolist())) < len(survivors):  # only the best copy of each start goes on
+            keep = torch.as_tensor(_best_copy_rows(survivors, lin.objective), device=p.device)
+            p, base, lin, damping, moving, survivors = _subset(keep, p, base, lin, damping, moving, survivors, batch)
         if not searched and (it == min(stages, default=0) or not bool(moving.any())):
             searched = True
             if settings.samples_after_pruning is not None:
@@ -328,16 +335,17 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
                 lin = None
             if settings.translation_search and "translation" not in fixed:
                 p, n = _translation_search(decoder, p, base, problem_of, whitening, settings)
-                evaluations += n
+                count("translation search", n)
                 lin = None
             if settings.code_starts and prior is not None and prior.codes is not None and "latent" not in fixed:
                 p, base, survivors, n = _code_restarts(decoder, p, base, survivors, batch, problem_of, prior,
                                                        settings)
-                evaluations += n
+                count("code scoring", n)
+                restarted_at = it
                 lin = None
         if lin is None:  # new hypotheses: linearize afresh, every one moving
             lin = linearize(decoder, p, base, problem, whitening, free)
-            evaluations += len(p) * len(problem.sdf)
+            count("survivors" if searched else "starts", len(p) * len(problem.sdf))
             damping = torch.full((len(p),), settings.damping, dtype=torch.float64, device=device)
             moving = torch.ones(len(p), dtype=torch.bool, device=device)
         if trace is not None:
@@ -352,7 +360,7 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
         trial[:, free] += step
         trial[:, 0] = trial[:, 0].clamp(settings.scale_min, settings.scale_max)
         new = linearize(decoder, trial, base[rows], problem, whitening, free)
-        evaluations += len(rows) * len(problem.sdf)
+        count("survivors" if searched else "starts", len(rows) * len(problem.sdf))
         finite = torch.isfinite(new.objective) & torch.isfinite(new.hessian).flatten(1).all(1) & \
             torch.isfinite(new.gradient).all(1)
         better = solved & finite & (new.objective < lin.objective[rows])
@@ -371,12 +379,12 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     if len(set(survivors.tolist())) < len(survivors):
         survivors = _best_copies(batch, survivors, lin.objective)
     if settings.polish_iterations:
-        evaluations += polish(decoder, batch, problem_of, settings)
+        count("polish", polish(decoder, batch, problem_of, settings))
     final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty,
                           (settings.scale_prior, s0), generator)
-    evaluations += len(batch) * min(settings.eval_samples, len(sdf))
-    return Optimized(batch, final, survivors, pruned, iterations, evaluations, time.perf_counter() - start,
-                     failed=failed)
+    count("final losses", len(batch) * min(settings.eval_samples, len(sdf)))
+    return Optimized(batch, final, survivors, pruned, iterations, sum(parts.values()), time.perf_counter() - start,
+                     failed=failed, evaluation_parts=parts)
 
 
 def _drop_failed(p: torch.Tensor, base: torch.Tensor, lin: Linearization, damping: torch.Tensor,
@@ -442,7 +450,8 @@ def _code_restarts(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, surviv
     on ``yaw_screen_samples`` samples); returns p, base, survivors and the evaluations spent."""
     codes = torch.as_tensor(prior.codes, dtype=torch.float64, device=p.device)
     whitened = torch.linalg.solve_triangular(batch.prior_factor, (codes - batch.prior_mean).T, upper=False).T
-    screen = problem_of(settings.yaw_screen_samples)
+    screen = problem_of(settings.yaw_screen_samples if settings.code_screen_samples is None
+                        else settings.code_screen_samples)
     n, k = len(whitened), min(settings.code_starts, len(whitened))
     rows, bases = [], []
     for h in range(len(p)):
@@ -460,10 +469,25 @@ def _code_restarts(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, surviv
             len(p) * n * len(screen.sdf))
 
 
+def _subset(keep: torch.Tensor, p: torch.Tensor, base: torch.Tensor, lin: Linearization, damping: torch.Tensor,
+            moving: torch.Tensor, survivors: np.ndarray, batch: HypothesisBatch) -> tuple:
+    """Only the hypotheses ``keep`` (indices, in that order) of every per-hypothesis state go on."""
+    batch.keep(keep.cpu())
+    lin = Linearization(lin.objective[keep], lin.hessian[keep], lin.gradient[keep])
+    return p[keep], base[keep], lin, damping[keep], moving[keep], survivors[keep.cpu().numpy()]
+
+
+def _best_copy_rows(survivors: np.ndarray, objective: torch.Tensor) -> list[int]:
+    """Of the hypotheses that share a start (code restarts), the row with the lowest ``objective``
+    (H,), start by start in first-seen order."""
+    values = objective.cpu().numpy()
+    return [int(min(np.flatnonzero(survivors == s), key=lambda h: values[h]))
+            for s in dict.fromkeys(survivors.tolist())]
+
+
 def _best_copies(batch: HypothesisBatch, survivors: np.ndarray, objective: torch.Tensor) -> np.ndarray:
     """Keep, of the hypotheses that share a start (code restarts), the one with the lowest
     ``objective`` (H,); returns the kept hypotheses' start indices."""
-    values = objective.cpu().numpy()
-    keep = [min(np.flatnonzero(survivors == s), key=lambda h: values[h]) for s in dict.fromkeys(survivors.tolist())]
+    keep = _best_copy_rows(survivors, objective)
     batch.keep(torch.as_tensor(keep))
     return survivors[keep]

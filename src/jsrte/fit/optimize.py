@@ -34,6 +34,9 @@ class Optimized:
     seconds: float
     failed: dict[int, str] = field(default_factory=dict)
     """Hypotheses (by initial index) dropped because their objective turned NaN or infinite, and why."""
+    evaluation_parts: dict[str, int] = field(default_factory=dict)
+    """``evaluations`` split by the part of the solve that spent them (Levenberg–Marquardt only;
+    empty for Adam)."""
 
 
 def new_batch(decoder: Decoder, inits: list[Init], settings: FitSettings, *, fixed: frozenset[str],

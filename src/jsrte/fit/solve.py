@@ -112,6 +112,8 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
               "failed_hypotheses": {str(i): why for i, why in sorted(result.failed.items())},
               "winner_hypothesis": int(result.survivors[winner])},
     )
+    if result.evaluation_parts:
+        fitted.info["decoder_evaluations_by_part"] = dict(result.evaluation_parts)
     _assess(model, observed, fitted, seed)
     return fitted
 

@@ -164,3 +164,29 @@ def test_a_bed_cut_at_its_headboard_is_fitted_whole(tmp_path, bed_model):
                for p in chosen["parts"])
     picked = cands.segmentation.candidates[record["chosen"]].index
     assert labels[cands.segmented.index[picked]].sum() > 0.95 * labels[cands.segmented.index].sum()
+
+
+@pytest.mark.slow
+def test_a_chair_beside_a_box_is_chosen_without_the_box(tmp_path, chair_model):
+    """A held-out chair 2-3 cm from a box (one cluster, cut in two): the whole is screened too,
+    and the chair alone is chosen."""
+    from jsrte.fit.query import class_shape
+
+    settings = replace(SMALL, scanner=replace(SMALL.scanner, width=240, height=180),
+                       first_neighbour_gap_m=(0.02, 0.03))
+    room = scan_room(held_out("chair", 102), rng=np.random.default_rng(2), settings=settings, target_kind="chair",
+                     others=[("box", box((0.4, 0.5, 0.5)), "box")])
+    ply = write_room(room, tmp_path / "room")
+
+    def segment(model):
+        return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model))
+
+    cands = segment(chair_model)
+    labels = room.labels[cands.segmented.index]
+    seg = cands.segmentation
+    pair = [k for k, c in enumerate(seg.candidates) if c.parts and np.mean(labels[c.index] == 1) > 0.2]
+    assert pair and np.mean(labels[seg.candidates[pair[0]].index] == 0) > 0.2  # chair and box, one whole
+    record = choose_in_scan(ply, {"chair": chair_model}, segment=segment).query.info["segmentation"]
+    picked = seg.candidates[record["chosen"]].index
+    assert "screen" in record["candidates"][pair[0]]  # the whole competed
+    assert np.mean(labels[picked] == 0) > 0.9 and len(picked) > 0.7 * np.sum(labels == 0)

@@ -181,7 +181,9 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
                    settings: ScreenSettings = ScreenSettings(), seed: int = 0,
                    final_rng: np.random.Generator | None = None) -> Choice:
     """Screen the best candidates of a scan for each of ``models`` (name -> model) and keep the
-    lowest screen score.
+    lowest screen score: the class is the model with the lowest score over every candidate it
+    screened, the object that model's best candidate once each split is judged
+    (:func:`split_or_whole`: a whole or its parts).
 
     ``segment(model)`` segments the scan with that model's class shape and returns its
     ``ScanCandidates`` (``jsrte.fit.query.scan_candidates``). A single model with a single
@@ -207,14 +209,16 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
                 screened.append(screen(models[name], name, queries[key], k, settings, seed, rank))
     if not screened:
         raise JsrteError("no candidate object to screen", path)
-    covered = {name: _covered(per_model[name], [s for s in screened if s.model == name], models[name], settings,
-                              seed) for name in models}
-    eligible = [s for s in screened if s.candidate not in covered[s.model]]
-    best = min(eligible, key=lambda s: s.score)
-    for s in screened:
-        if s.model == best.model:
-            record = s.to_json() | ({"covered": True} if s.candidate in covered[s.model] else {})
-            per_model[s.model].segmentation.candidates[s.candidate].summary["screen"] = record
+    classes = {name: min((s.score for s in screened if s.model == name), default=None) for name in models}
+    winner = min((name for name in models if classes[name] is not None), key=classes.__getitem__)
+    own = [s for s in screened if s.model == winner]
+    covered = _covered(per_model[winner], own, models[winner], settings, seed)
+    scores = {s.candidate: s.score for s in own}
+    best = min((s for s in own if s.candidate not in covered),
+               key=lambda s: _best_within(per_model[winner].segmentation.candidates, scores, s.candidate))
+    for s in own:
+        record = s.to_json() | ({"covered": True} if s.candidate in covered else {})
+        per_model[winner].segmentation.candidates[s.candidate].summary["screen"] = record
     chosen = per_model[best.model]
     seg = chosen.segmentation
     by_class = seg.chosen
@@ -223,7 +227,6 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     if len(models) == 1 and best.candidate == by_class and final_rng is not None:
         query = chosen.query(best.candidate, rng=final_rng)  # the same samples as without a screen
     query.info["segmentation"] = seg.to_json()
-    classes = {name: min((s.score for s in eligible if s.model == name), default=None) for name in models}
     return Choice(query, models[best.model], screened, classes)
 
 
@@ -328,6 +331,12 @@ def _covered(cands: object, screened: list[Screened], model: DeepSdfModel, setti
 
     return split_or_whole(cands.segmentation.candidates, {k: s.score for k, s in by_candidate.items()}, explains,
                           settings)
+
+
+def _best_within(candidates: list, scores: dict[int, float], k: int) -> float:
+    """The lowest of the screen ``scores`` of candidate ``k`` and of the parts it holds (a whole
+    that covers its parts is as good an object as its best part: it is that part, completed)."""
+    return min([scores[k]] + [_best_within(candidates, scores, p) for p in candidates[k].parts if p in scores])
 
 
 def _points_key(cands: object, k: int) -> str:

@@ -238,6 +238,32 @@ def test_a_table_top_seen_apart_from_its_legs_rests_on_them(with_class):
     assert any((c.index >= table_points).all() for c in valid)  # the box stays apart
 
 
+def test_a_split_keeps_its_whole_as_a_candidate():
+    """A chair 3 cm from a box (one DBSCAN cluster) is cut in two; the whole stays a candidate
+    with its parts (for the screen to weigh), but proportions and ``at`` choose among the parts."""
+    chair = stand_in_chair()
+    side_box = box((0.4, 0.35, 0.5))
+    side_box.apply_translation([chair.bounds[1][0] + 0.23, 0.0, 0.0])
+    chair_points = _surface_points(chair, 4000, 0)
+    points = np.concatenate([chair_points, _surface_points(side_box, 2000, 1)])
+    up = np.array([0.0, 1.0, 0.0])
+    result = segment_objects(points, points[:, 1], up, rng=np.random.default_rng(0), shape=chair_shape())
+    cands = result.candidates
+    whole = next(k for k, c in enumerate(cands) if c.parts and c.parent is None)
+    assert len(cands[whole].index) > 0.85 * len(points)
+    is_chair = [(cands[p].index < len(chair_points)).mean() for p in cands[whole].parts]
+    assert max(is_chair) > 0.95 and min(is_chair) < 0.2  # cut at the gap
+    for k, c in enumerate(cands):
+        assert all(cands[p].parent == k and set(cands[p].index) <= set(c.index) for p in c.parts)
+    assert not cands[result.chosen].parts and (cands[result.chosen].index < len(chair_points)).mean() > 0.95
+    record = result.to_json()["candidates"]
+    assert record[whole]["parts"] == cands[whole].parts and "parent" not in record[whole]
+    assert all(record[p]["parent"] == whole for p in cands[whole].parts)
+    at = segment_objects(points, points[:, 1], up, rng=np.random.default_rng(0), shape=chair_shape(),
+                         at=chair_points.mean(0))
+    assert not at.candidates[at.chosen].parts and (at.index < len(chair_points)).mean() > 0.95
+
+
 def test_nothing_left_says_what_was_removed():
     rng = np.random.default_rng(0)
     flat = np.column_stack([rng.uniform(0, 2, 2000), rng.uniform(0, 0.05, 2000), rng.uniform(0, 2, 2000)])

@@ -98,3 +98,95 @@ def test_chair_or_table_on_a_table_scan_is_a_table(tmp_path, monkeypatch, capsys
     assert "class table" in out and choice["chosen"] == "table" and record["model"] == "table"
     assert set(choice["scores"]) == {"chair", "table"} and choice["margin"] > 0
     assert choice["scores"]["table"] + choice["margin"] == pytest.approx(choice["scores"]["chair"], abs=1e-4)
+
+
+# --- a split's whole against its parts ---------------------------------------------------------
+
+
+class _Cand:
+    def __init__(self, points: int, parts: list[int] | None = None, parent: int | None = None):
+        self.index, self.parts, self.parent = np.arange(points), parts or [], parent
+
+
+def test_a_whole_explained_better_than_by_its_parts_covers_them():
+    from jsrte.fit.screen import split_or_whole
+
+    # 0 = 1 + 2, 1 = 3 + 4 (the split's tree, most points first)
+    tree = [_Cand(1000, [1, 2]), _Cand(600, [3, 4], 0), _Cand(400, parent=0), _Cand(400, parent=1),
+            _Cand(200, parent=1)]
+    # a bed cut in pieces: the whole's fit explains all of it, a piece's fit only that piece
+    assert split_or_whole(tree, {0: 0.02, 1: 0.03, 2: 0.05, 3: 0.02, 4: 0.06}) == {1, 2, 3, 4}
+    # a chair (3) beside a box (4) beside a table (2): each whole explains its points worse
+    assert split_or_whole(tree, {0: 0.05, 1: 0.04, 2: 0.03, 3: 0.01, 4: 0.03}) == {0, 1}
+    # the chair and the box are one object, beside a table
+    assert split_or_whole(tree, {0: 0.05, 1: 0.015, 2: 0.02, 3: 0.01, 4: 0.03}) == {0, 3, 4}
+    # the whole's fit explains its points as well as the parts' fits, but its best part (1, a
+    # chair judged whole) three times worse than that part's own fit: a chair fitted to a chair
+    # beside a table is a poor chair
+    asked = []
+
+    def explains(whole: int, part: int) -> float:
+        asked.append((whole, part))
+        return 3.0 if whole == 0 else 1.0
+
+    scores = {0: 0.02, 1: 0.03, 2: 0.05, 3: 0.02, 4: 0.06}
+    assert split_or_whole(tree, scores, explains) == {0, 3, 4} and asked == [(1, 3), (0, 1)]
+
+
+@pytest.fixture(scope="module")
+def bed_model():
+    return resolve_model("bed")
+
+
+@pytest.mark.slow
+def test_a_bed_cut_at_its_headboard_is_fitted_whole(tmp_path, bed_model):
+    """Held-out bed 100: the split by class likeness cuts it in two; the screen keeps it whole."""
+    from jsrte.fit.query import class_shape
+
+    scan = scan_mesh(held_out("bed", 100), rng=np.random.default_rng(100))
+    ply = write_scan(scan, tmp_path / "bed.ply")
+    labels = scan.is_object
+
+    def segment(model):
+        return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model))
+
+    cands = segment(bed_model)
+    seg = cands.segmentation
+    whole = [k for k, c in enumerate(seg.candidates) if c.parts]
+    assert len(whole) == 1 and len(cands.valid()) == 2  # cut in two; the whole is no part of valid()
+    assert all(seg.candidates[p].parent == whole[0] for p in seg.candidates[whole[0]].parts)
+    assert seg.chosen != whole[0]  # proportions alone take a part
+    choice = choose_in_scan(ply, {"bed": bed_model}, segment=segment)
+    record = choice.query.info["segmentation"]
+    chosen = record["candidates"][record["chosen"]]
+    assert record["chosen"] == whole[0] and len(chosen["parts"]) == 2
+    assert all(record["candidates"][p]["parent"] == whole[0] and record["candidates"][p]["screen"]["covered"]
+               for p in chosen["parts"])
+    picked = cands.segmentation.candidates[record["chosen"]].index
+    assert labels[cands.segmented.index[picked]].sum() > 0.95 * labels[cands.segmented.index].sum()
+
+
+@pytest.mark.slow
+def test_a_chair_beside_a_box_is_chosen_without_the_box(tmp_path, chair_model):
+    """A held-out chair 2-3 cm from a box (one cluster, cut in two): the whole is screened too,
+    and the chair alone is chosen."""
+    from jsrte.fit.query import class_shape
+
+    settings = replace(SMALL, scanner=replace(SMALL.scanner, width=240, height=180),
+                       first_neighbour_gap_m=(0.02, 0.03))
+    room = scan_room(held_out("chair", 102), rng=np.random.default_rng(2), settings=settings, target_kind="chair",
+                     others=[("box", box((0.4, 0.5, 0.5)), "box")])
+    ply = write_room(room, tmp_path / "room")
+
+    def segment(model):
+        return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model))
+
+    cands = segment(chair_model)
+    labels = room.labels[cands.segmented.index]
+    seg = cands.segmentation
+    pair = [k for k, c in enumerate(seg.candidates) if c.parts and np.mean(labels[c.index] == 1) > 0.2]
+    assert pair and np.mean(labels[seg.candidates[pair[0]].index] == 0) > 0.2  # chair and box, one whole
+    record = choose_in_scan(ply, {"chair": chair_model}, segment=segment).query.info["segmentation"]
+    picked = seg.candidates[record["chosen"]].index
+    assert "screen" in record["candidates"][pair[0]]  # the whole competed
+    assert np.mean(labels[picked] == 0) > 0.9 and len(picked) > 0.7 * np.sum(labels == 0)

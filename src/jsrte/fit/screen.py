@@ -19,6 +19,14 @@ candidates of different sizes and classes of different models:
 
 Both terms are measured on the candidate's own samples, whatever the model; neither depends on
 the model's training loss scale or latent size.
+
+A cluster that segmentation split in parts stays a candidate too (its ``parts``): one object
+cut at a narrow place (a bed's headboard, a sofa's arm) and two objects side by side (a chair
+beside a box) look alike to proportions, not to a fit. When a part is among the best
+candidates, its whole and the whole's other parts are screened too, and the whole is weighed
+against its parts (:func:`split_or_whole`): the parts' scores, weighted by their points, are
+what the split explains of the whole's points; a chair model fitted to a chair beside a box
+explains the box badly, a bed model fitted to a whole bed explains all of it.
 """
 
 from __future__ import annotations
@@ -64,6 +72,12 @@ class ScreenSettings:
     rank_weight: float = 0.02
     """Weight of the candidate's class rank (segmentation's proportions score): it settles near
     ties of the fit (on the tuning rooms any weight from 0.005 to 0.05 chose the same)."""
+    whole_margin: float = 0.01
+    """A split's whole may be the object when its screen score is at most its parts' (weighted
+    by their points) plus this (:func:`split_or_whole`)."""
+    whole_explains: float = 1.3
+    """... and when its fitted surface lies at most this many times as far from its best
+    part's points as the part's own fitted surface (:func:`explained_ratio`)."""
 
 
 @dataclass
@@ -168,7 +182,9 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
                    settings: ScreenSettings = ScreenSettings(), seed: int = 0,
                    final_rng: np.random.Generator | None = None) -> Choice:
     """Screen the best candidates of a scan for each of ``models`` (name -> model) and keep the
-    lowest screen score.
+    lowest screen score: the class is the model with the lowest score over every candidate it
+    screened, the object that model's best candidate once each split is judged
+    (:func:`split_or_whole`: a whole or its parts).
 
     ``segment(model)`` segments the scan with that model's class shape and returns its
     ``ScanCandidates`` (``jsrte.fit.query.scan_candidates``). A single model with a single
@@ -184,7 +200,7 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     queries: dict[str, SdfQuery] = {}
     screened: list[Screened] = []
     for name, cands in per_model.items():
-        for k in cands.valid()[: settings.candidates]:
+        for k in screened_candidates(cands, settings.candidates):
             key = _points_key(cands, k)
             if key not in queries:
                 with stage("screen queries"):
@@ -194,10 +210,16 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
                 screened.append(screen(models[name], name, queries[key], k, settings, seed, rank))
     if not screened:
         raise JsrteError("no candidate object to screen", path)
-    best = min(screened, key=lambda s: s.score)
-    for s in screened:
-        if s.model == best.model:
-            per_model[s.model].segmentation.candidates[s.candidate].summary["screen"] = s.to_json()
+    classes = {name: min((s.score for s in screened if s.model == name), default=None) for name in models}
+    winner = min((name for name in models if classes[name] is not None), key=classes.__getitem__)
+    own = [s for s in screened if s.model == winner]
+    covered = _covered(per_model[winner], own, models[winner], settings, seed)
+    scores = {s.candidate: s.score for s in own}
+    best = min((s for s in own if s.candidate not in covered),
+               key=lambda s: _best_within(per_model[winner].segmentation.candidates, scores, s.candidate))
+    for s in own:
+        record = s.to_json() | ({"covered": True} if s.candidate in covered else {})
+        per_model[winner].segmentation.candidates[s.candidate].summary["screen"] = record
     chosen = per_model[best.model]
     seg = chosen.segmentation
     by_class = seg.chosen
@@ -206,8 +228,89 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     if len(models) == 1 and best.candidate == by_class and final_rng is not None:
         query = chosen.query(best.candidate, rng=final_rng)  # the same samples as without a screen
     query.info["segmentation"] = seg.to_json()
-    classes = {name: min((s.score for s in screened if s.model == name), default=None) for name in models}
     return Choice(query, models[best.model], screened, classes)
+
+
+def screened_candidates(cands: object, n: int) -> list[int]:
+    """Positions of the candidates of ``cands`` (``ScanCandidates``) to screen: the best ``n``
+    by class rank among those not split, the wholes they were split from, and every part of
+    those wholes (so that each whole can be weighed against all its parts)."""
+    candidates = cands.segmentation.candidates
+    picks = list(cands.valid()[:n])
+    for k in list(picks):
+        above = candidates[k].parent
+        while above is not None:
+            if above not in picks:
+                picks.append(above)
+            above = candidates[above].parent
+    wholes = [k for k in picks if candidates[k].parts]
+    while wholes:
+        for part in candidates[wholes.pop()].parts:
+            if part not in picks:
+                picks.append(part)
+                if candidates[part].parts:
+                    wholes.append(part)
+    return picks
+
+
+def split_or_whole(candidates: list, scores: dict[int, float], explains: object = None,
+                   settings: ScreenSettings = ScreenSettings()) -> set[int]:
+    """The screened candidates that are not objects of their own, as the screen ``scores``
+    (position -> score) judge each split (``candidates``: the segmentation's, with their
+    ``parent`` and ``parts``), smallest whole first. A whole covers its parts (they are pieces
+    of one object) when
+
+    - its score is at most its parts' (their scores weighted by their points, a part split
+      again counting as it was judged) plus ``whole_margin``: the whole's fit explains its
+      points as well as the parts' fits explain theirs; and
+    - ``explains(whole, part)`` (how much farther the whole's fitted surface lies from the
+      part's points than the part's own, :func:`explained_ratio`) is at most
+      ``whole_explains`` for the part that would be chosen in its stead (its best-scored
+      part, or that part's best when covered by it): a chair beside a box fitted as one is
+      a poor chair; a bed fitted whole is as good a bed at the mattress as the mattress alone;
+
+    else the whole is covered by its parts (it holds several objects)."""
+    covered: set[int] = set()
+    judged: dict[int, float] = {}
+    best_of: dict[int, int] = {}
+
+    def covers(whole: int) -> None:
+        for part in candidates[whole].parts:
+            covered.add(part)
+            if candidates[part].parts:
+                covers(part)
+
+    wholes = sorted((k for k in scores if candidates[k].parts), key=lambda k: len(candidates[k].index))
+    for k in wholes:  # smallest first: a whole's parts are judged before it
+        parts = candidates[k].parts
+        if not all(p in scores for p in parts):
+            covered.add(k)
+            continue
+        total = sum(len(candidates[p].index) for p in parts)
+        split = sum(len(candidates[p].index) / total * judged.get(p, scores[p]) for p in parts)
+        best = min((best_of.get(p, p) for p in parts), key=scores.__getitem__)
+        whole = scores[k] <= split + settings.whole_margin and (
+            explains is None or explains(k, best) <= settings.whole_explains)
+        if whole:
+            judged[k], best_of[k] = scores[k], k
+            covers(k)
+        else:
+            judged[k], best_of[k] = split, best
+            covered.add(k)
+    return covered
+
+
+def explained_ratio(model: DeepSdfModel, whole: Screened, part: Screened, settings: ScreenSettings,
+                    seed: int = 0) -> float:
+    """How far the fitted surface of ``whole`` lies from the points of ``part`` (one of its
+    parts), over how far the part's own fitted surface lies: mean |SDF| at up to
+    ``surface_points`` of the part's points, each capped at ``residual_cap`` part radii."""
+    surface = part.query.surface
+    pick = np.random.default_rng(seed).permutation(len(surface))[: settings.surface_points]
+    cap = settings.residual_cap * part.parts["radius"]
+    own = np.minimum(np.abs(predicted_sdf(model, part.result, surface[pick])), cap).mean()
+    by_whole = np.minimum(np.abs(predicted_sdf(model, whole.result, surface[pick])), cap).mean()
+    return float(by_whole / max(own, 1e-12))
 
 
 def choose_class(query: SdfQuery, models: dict[str, DeepSdfModel], *,
@@ -216,6 +319,25 @@ def choose_class(query: SdfQuery, models: dict[str, DeepSdfModel], *,
     screened = [screen(model, name, query, None, settings, seed) for name, model in models.items()]
     best = min(screened, key=lambda s: s.score)
     return Choice(query, models[best.model], screened, {s.model: s.score for s in screened})
+
+
+def _covered(cands: object, screened: list[Screened], model: DeepSdfModel, settings: ScreenSettings,
+             seed: int) -> set[int]:
+    """The candidates of ``cands`` screened by ``model`` that its splits' judgement covers
+    (:func:`split_or_whole`)."""
+    by_candidate = {s.candidate: s for s in screened}
+
+    def explains(whole: int, part: int) -> float:
+        return explained_ratio(model, by_candidate[whole], by_candidate[part], settings, seed)
+
+    return split_or_whole(cands.segmentation.candidates, {k: s.score for k, s in by_candidate.items()}, explains,
+                          settings)
+
+
+def _best_within(candidates: list, scores: dict[int, float], k: int) -> float:
+    """The lowest of the screen ``scores`` of candidate ``k`` and of the parts it holds (a whole
+    that covers its parts is as good an object as its best part: it is that part, completed)."""
+    return min([scores[k]] + [_best_within(candidates, scores, p) for p in candidates[k].parts if p in scores])
 
 
 def _points_key(cands: object, k: int) -> str:

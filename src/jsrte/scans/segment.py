@@ -10,7 +10,10 @@ Above the floor (found by :func:`jsrte.scans.preprocess.segment_floor`), in orde
    class as well as the bigger one alone (a chair's back on thin posts).
 4. **Split**: a cluster that holds two touching objects is cut in two at its narrowest neck
    (normalized cut of its neighbour graph); the split is kept when one of its parts matches
-   the class better than the whole (:func:`class_score`), and its parts are cut again.
+   the class better than the whole (:func:`class_score`), and its parts are cut again. The
+   whole stays a candidate beside its parts (its ``parts``; theirs, its ``parent``): one
+   object cut at a narrow place (a bed's headboard) and two objects side by side look alike
+   to proportions, and a quick fit (``jsrte.fit.screen``) tells them apart.
 5. **Candidates**: clusters too small, flat, thin or big to be an object are dropped; the
    others are ranked by how well their proportions and height profile match the class
    (:class:`ClassShape`, from the model), or by their distance to a point given by the user.
@@ -135,12 +138,17 @@ class Candidate:
     index : (m,) int64 indices of its points in the segmented cloud
     score : class score (lower matches better; None without a class)
     rejected : why it cannot be the object ("" when it can)
+    parent : position (in the segmentation's candidates) of the whole it was split from, if any
+    parts : positions of the candidates it was split into (empty: not split); the parts hold
+        its points, so a candidate with parts overlaps them
     """
 
     index: np.ndarray
     score: float | None = None
     rejected: str = ""
     summary: dict[str, Any] = field(default_factory=dict)
+    parent: int | None = None
+    parts: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -168,8 +176,18 @@ class Segmentation:
         """fit.json's ``segmentation`` block."""
         return {"chosen": self.chosen, "chosen_by": self.how, "walls": self.walls, "removed": self.removed,
                 "candidates": [c.summary | {"score": None if c.score is None else round(c.score, 4),
-                                            "rejected": c.rejected, "chosen": k == self.chosen}
+                                            "rejected": c.rejected, "chosen": k == self.chosen} | _family(c)
                                for k, c in enumerate(self.candidates)]}
+
+
+def _family(candidate: Candidate) -> dict[str, Any]:
+    """A candidate's ``parent`` and ``parts`` in fit.json (only for a split's whole and parts)."""
+    family: dict[str, Any] = {}
+    if candidate.parent is not None:
+        family["parent"] = candidate.parent
+    if candidate.parts:
+        family["parts"] = list(candidate.parts)
+    return family
 
 
 def height_profile(heights: np.ndarray, top: float) -> np.ndarray:
@@ -222,9 +240,10 @@ def segment_objects(
     clusters = [kept[labels == k] for k in range(labels.max(initial=-1) + 1)]
     clusters = _join(clusters, points, heights, shape, settings)
     clusters = _join_supported(clusters, points, heights, up, settings)
-    clusters = [part for c in clusters for part in _split(c, points, heights, shape, settings)]
-    candidates = [_candidate(c, points, heights, up, shape, settings) for c in clusters]
-    candidates.sort(key=lambda c: -len(c.index))
+    nodes: list[_Node] = []
+    for c in clusters:
+        _split_tree(c, points, heights, shape, settings, nodes)
+    candidates = _family_candidates(nodes, points, heights, up, shape, settings)
     removed["small_clusters"] = int(sum(len(c.index) for c in candidates if c.rejected.startswith("too few")))
     chosen, how = _choose(candidates, points, at, settings.size_weight)
     if chosen is None:
@@ -335,29 +354,71 @@ def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
         return np.asarray(cloud.cluster_dbscan(eps, min_points, print_progress=False))
 
 
-def _split(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-           s: SegmentSettings, depth: int = 0) -> list[np.ndarray]:
-    """``cluster`` (indices) or its parts, split by the normalized cut of its neighbour graph
-    (:func:`normalized_cut`: the narrowest neck between two bodies, where touching objects
-    meet). A split is kept when one part matches the class better than the whole by
-    ``split_margin`` and both parts could be objects (neither too flat nor too thin), or when
-    the whole is too big to be an object; each part is split again, ``split_depth`` deep."""
+@dataclass
+class _Node:
+    """A cluster of a split tree: its points ``index``, the position of its ``parent`` in the
+    tree's list (None: a root), whether it is a ``leaf`` (not split further)."""
+
+    index: np.ndarray
+    parent: int | None
+    leaf: bool
+
+
+def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
+                s: SegmentSettings, nodes: list[_Node], parent: int | None = None, depth: int = 0) -> None:
+    """Append to ``nodes`` ``cluster`` (indices) and its parts, split by the normalized cut of
+    its neighbour graph (:func:`normalized_cut`: the narrowest neck between two bodies, where
+    touching objects meet), each parent before its parts. A split is kept when one part matches
+    the class better than the whole by ``split_margin`` and both parts could be objects (neither
+    too flat nor too thin), or when the whole is too big to be an object (then the whole is
+    left out: it can only be parts); each part is split again, ``split_depth`` deep."""
+    cut = _cut(cluster, points, heights, shape, s, depth)
+    if cut is None:
+        nodes.append(_Node(cluster, parent, True))
+        return
+    parts, too_big = cut
+    if not too_big:
+        nodes.append(_Node(cluster, parent, False))
+        parent = len(nodes) - 1
+    for part in parts:
+        _split_tree(part, points, heights, shape, s, nodes, parent, depth + 1)
+
+
+def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
+         s: SegmentSettings, depth: int) -> tuple[list[np.ndarray], bool] | None:
+    """The two parts of ``cluster`` if the split is kept (:func:`_split_tree`), and whether
+    the whole is too big to be an object; None when it is not split."""
     if len(cluster) < 2 * s.shred_points or depth >= s.split_depth:
-        return [cluster]
+        return None
     whole = class_score(points[cluster], heights[cluster], shape)
     too_big = _too_big(points[cluster], heights[cluster], s)
     if whole is None and not too_big:
-        return [cluster]
+        return None
     side, value = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours)
     parts = [cluster[side], cluster[~side]]
     if value > s.cut_max or min(len(p) for p in parts) < s.shred_points:
-        return [cluster]
+        return None
     if not too_big and not all(_object_sized(points[p], heights[p], s) for p in parts):
-        return [cluster]  # a table's top cut from its legs: a part no object could be
+        return None  # a table's top cut from its legs: a part no object could be
     best = min((class_score(points[p], heights[p], shape) or 0.0) for p in parts)
     if not (too_big or (whole is not None and best < whole - s.split_margin)):
-        return [cluster]
-    return [q for p in parts for q in _split(p, points, heights, shape, s, depth + 1)]
+        return None
+    return parts, too_big
+
+
+def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                       shape: ClassShape | None, s: SegmentSettings) -> list[Candidate]:
+    """The candidates of the split trees' ``nodes``, most points first, with their ``parent``
+    and ``parts`` as positions in that order."""
+    parent = [n.parent for n in nodes]
+    order = sorted(range(len(nodes)), key=lambda k: -len(nodes[k].index))
+    position = {k: p for p, k in enumerate(order)}
+    candidates = [_candidate(nodes[k].index, points, heights, up, shape, s) for k in order]
+    for k in order:
+        if parent[k] is not None:
+            candidates[position[k]].parent = position[parent[k]]
+            candidates[position[parent[k]]].parts.append(position[k])
+    return candidates
 
 
 def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int = 10,
@@ -568,12 +629,14 @@ def _candidate(index: np.ndarray, points: np.ndarray, heights: np.ndarray, up: n
 
 def _choose(candidates: list[Candidate], points: np.ndarray, at: np.ndarray | None, size_weight: float
             ) -> tuple[int | None, str]:
-    """Position of the object among ``candidates`` and how it was chosen: nearest ``at``; else
-    lowest class score plus ``size_weight`` log(most points / its points); else most points."""
+    """Position of the object among ``candidates`` that were not split (a split's whole holds
+    its parts' points) and how it was chosen: nearest ``at``; else lowest class score plus
+    ``size_weight`` log(most points / its points); else most points. A split's whole gets its
+    rank too (the screen weighs it against its parts)."""
     from pykdtree.kdtree import KDTree
 
     if at is not None:
-        sized = [k for k, c in enumerate(candidates) if len(c.index) >= 4]
+        sized = [k for k, c in enumerate(candidates) if len(c.index) >= 4 and not c.parts]
         if not sized:
             return None, "at"
         query = np.asarray(at, dtype=np.float64).reshape(1, 3)
@@ -582,13 +645,15 @@ def _choose(candidates: list[Candidate], points: np.ndarray, at: np.ndarray | No
         for k, d in zip(sized, distance, strict=True):
             candidates[k].summary["distance_to_at_m"] = round(d, 4)
         return sized[int(np.argmin(distance))], "at"
-    valid = [k for k, c in enumerate(candidates) if not c.rejected]
+    valid = [k for k, c in enumerate(candidates) if not c.rejected and not c.parts]
     if not valid:
         return None, "class"
-    if all(candidates[k].score is not None for k in valid):
+    wholes = [k for k, c in enumerate(candidates) if not c.rejected and c.parts]
+    if all(candidates[k].score is not None for k in valid + wholes):
         most = max(len(candidates[k].index) for k in valid)
-        rank = {k: candidates[k].score + size_weight * float(np.log(most / len(candidates[k].index))) for k in valid}
-        for k in valid:
+        rank = {k: candidates[k].score + size_weight * float(np.log(most / len(candidates[k].index)))
+                for k in valid + wholes}
+        for k in valid + wholes:
             candidates[k].summary["rank"] = round(rank[k], 4)
         return min(valid, key=rank.__getitem__), "class"
     return max(valid, key=lambda k: len(candidates[k].index)), "largest"

@@ -13,15 +13,15 @@ from jsrte.fit.optimize import SdfQuery
 from jsrte.fit.quality import (
     FREE_SPACE_MIN_M,
     RULE,
+    SAME_SHAPE_DISTANCE,
     assess,
     fitted_sdf,
     flag_of,
     latent_distance,
-    SAME_SHAPE_DISTANCE,
     loss_margin,
     pose_distance,
-    surface_points,
     quality_columns,
+    surface_points,
 )
 from jsrte.fit.solve import fit_query
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix

@@ -110,12 +110,11 @@ class ScanCandidates:
         """The candidates and the choice (``jsrte.scans.segment.Segmentation``)."""
         return self.segmented.segmentation
 
-    def valid(self, *, wholes: bool = False) -> list[int]:
+    def valid(self) -> list[int]:
         """Positions of the candidates that may be the object, best class rank first: those not
-        split (each a separate object), and with ``wholes`` also the wholes of splits (each
-        overlapping its parts)."""
+        split further (a split's whole overlaps its parts; the screen weighs it against them)."""
         cands = self.segmentation.candidates
-        ok = [k for k, c in enumerate(cands) if not c.rejected and (wholes or not c.parts)]
+        ok = [k for k, c in enumerate(cands) if not c.rejected and not c.parts]
         return sorted(ok, key=lambda k: cands[k].summary.get("rank", -len(cands[k].index)))
 
     def query(self, candidate: int | None = None, *, keep: np.ndarray | None = None,

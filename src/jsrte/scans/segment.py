@@ -356,12 +356,11 @@ def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
 
 @dataclass
 class _Node:
-    """A cluster of a split tree: its points ``index``, the position of its ``parent`` in the
-    tree's list (None: a root), whether it is a ``leaf`` (not split further)."""
+    """A cluster of a split tree: its points ``index`` and the position of its ``parent`` in the
+    tree's list (None: a root)."""
 
     index: np.ndarray
     parent: int | None
-    leaf: bool
 
 
 def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
@@ -374,11 +373,11 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, sh
     left out: it can only be parts); each part is split again, ``split_depth`` deep."""
     cut = _cut(cluster, points, heights, shape, s, depth)
     if cut is None:
-        nodes.append(_Node(cluster, parent, True))
+        nodes.append(_Node(cluster, parent))
         return
     parts, too_big = cut
     if not too_big:
-        nodes.append(_Node(cluster, parent, False))
+        nodes.append(_Node(cluster, parent))
         parent = len(nodes) - 1
     for part in parts:
         _split_tree(part, points, heights, shape, s, nodes, parent, depth + 1)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Create .venv/ at the repository root and install jsrte into it (CPU PyTorch pinned).
-# Installs the Debian libraries Open3D (libusb) and offscreen rendering (EGL) need, when root.
+# Installs the Debian libraries Open3D needs (libusb, EGL, GL), when root.
 set -euo pipefail
 PY="${1:-python3.11}"
 command -v "$PY" >/dev/null 2>&1 || PY=python3

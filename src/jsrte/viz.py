@@ -1,9 +1,8 @@
 """Figures: fitted meshes in gray overlaid with scan points in red (as in the paper's figures).
 
-Rendering uses pyrender offscreen through EGL (headless; ``PYOPENGL_PLATFORM`` is set to
-``egl`` unless already set). Where EGL or pyrender is unavailable, a matplotlib renderer
-(painter's algorithm, same cameras) is used instead; pass ``backend="matplotlib"`` to force it.
-Tiles are composed with Pillow and every PNG is written atomically.
+Views are drawn by :mod:`jsrte.raster`, a NumPy software renderer (no OpenGL, EGL or
+matplotlib): meshes shaded flat and two-sided, scan points as small red discs hidden where they
+lie behind the surface. Tiles are composed with Pillow and every PNG is written atomically.
 
 Cameras orbit the ``up`` axis; azimuth 0 looks at the object's front (the canonical frame's
 front faces -z when up is +y) and positive azimuths turn towards the object's left, so the
@@ -12,46 +11,28 @@ default single view ("front-left") shows the front and a side, 25 degrees from a
 
 from __future__ import annotations
 
-import os
+import math
+from collections.abc import Sequence
+from pathlib import Path
 
-os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+import numpy as np
+import trimesh
 
-import math  # noqa: E402
-import warnings  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
-from pathlib import Path  # noqa: E402
-from typing import Literal  # noqa: E402
+from jsrte.atomic import write_with
+from jsrte.raster import Camera, render
 
-import numpy as np  # noqa: E402
-import trimesh  # noqa: E402
+__all__ = ["Camera", "compose_tiles", "render_mesh_grid", "render_overlay", "render_panels"]
 
-from jsrte.atomic import write_with  # noqa: E402
-
-Backend = Literal["auto", "pyrender", "matplotlib"]
-
-MESH_RGBA = (0.6, 0.6, 0.6, 1.0)
-"""Gray of fitted meshes (float colours, as pyrender wants them)."""
-POINTS_RGBA = (0.9, 0.05, 0.05, 1.0)
-"""Red of scan points."""
-BACKGROUND_RGBA = (1.0, 1.0, 1.0, 1.0)
 YFOV = math.radians(35.0)
 ELEVATION_DEG = 25.0
 FRONT_LEFT_AZIMUTH_DEG = 40.0
 MAX_POINTS = 20_000
 """Scan points drawn at most (a seeded subsample beyond this)."""
-FALLBACK_MAX_FACES = 12_000
-"""The matplotlib renderer simplifies larger meshes to about this many faces."""
+POINT_TOLERANCE = 0.015
+"""A scan point is drawn where it lies at most this fraction of the view's radius behind the mesh
+(scan noise and the fit's residual leave points just under the fitted surface)."""
 
 Panel = tuple[str, trimesh.Trimesh | None, np.ndarray | None]
-
-
-@dataclass(frozen=True)
-class Camera:
-    """A perspective camera: ``pose`` (4, 4) camera-to-world (looks along its -z, +y up)."""
-
-    pose: np.ndarray
-    yfov: float = YFOV
 
 
 # --- public figures ----------------------------------------------------------------------
@@ -66,7 +47,6 @@ def render_overlay(
     views: int = 2,
     size: tuple[int, int] = (640, 480),
     title: str | None = None,
-    backend: Backend = "auto",
 ) -> None:
     """A PNG of ``mesh`` (gray) with ``points`` (red) from ``views`` cameras around ``up``.
 
@@ -82,7 +62,6 @@ def render_overlay(
         Cameras spread evenly in azimuth, the first front-left; tiles side by side.
     size : (width, height) pixels of each view
     title : optional text above the views
-    backend : "auto" (pyrender, matplotlib if EGL fails), "pyrender" or "matplotlib"
     """
     if views < 1:
         raise ValueError(f"views must be >= 1, got {views}")
@@ -92,8 +71,8 @@ def render_overlay(
         _orbit_camera(centre, radius, up, FRONT_LEFT_AZIMUTH_DEG + 360.0 * k / views, size)
         for k in range(views)
     ]
-    images = [_render(mesh, points, camera, size, backend) for camera in cameras]
-    _compose(images, [None] * views, out_path, cols=views, title=title)
+    images = [_render(mesh, points, camera, size, radius) for camera in cameras]
+    compose_tiles(images, [None] * views, out_path, cols=views, title=title)
 
 
 def render_mesh_grid(
@@ -104,7 +83,6 @@ def render_mesh_grid(
     cols: int = 4,
     up: Sequence[float] = (0.0, 1.0, 0.0),
     tile: tuple[int, int] = (320, 320),
-    backend: Backend = "auto",
 ) -> None:
     """A contact sheet: each mesh gray, front-left, framed on itself, its title underneath.
 
@@ -125,8 +103,8 @@ def render_mesh_grid(
     for mesh in meshes:
         centre, radius = _frame(_extent_points([mesh], []))
         camera = _orbit_camera(centre, radius, up, FRONT_LEFT_AZIMUTH_DEG, tile)
-        images.append(_render(mesh, None, camera, tile, backend))
-    _compose(images, list(titles), out_path, cols=max(1, min(cols, len(meshes))))
+        images.append(_render(mesh, None, camera, tile, radius))
+    compose_tiles(images, list(titles), out_path, cols=max(1, min(cols, len(meshes))))
 
 
 def render_panels(
@@ -135,7 +113,6 @@ def render_panels(
     *,
     up: Sequence[float] = (0.0, 1.0, 0.0),
     tile: tuple[int, int] = (360, 360),
-    backend: Backend = "auto",
 ) -> None:
     """One row of labelled panels ``(label, mesh or None, points or None)``, one shared camera.
 
@@ -149,10 +126,10 @@ def render_panels(
     clouds = [_as_points(points) for _, _, points in panels]
     centre, radius = _frame(_extent_points(meshes, clouds))
     camera = _orbit_camera(centre, radius, up, FRONT_LEFT_AZIMUTH_DEG, tile)
-    images = [_render(mesh, cloud, camera, tile, backend) for mesh, cloud in zip(meshes, clouds, strict=True)]
+    images = [_render(mesh, cloud, camera, tile, radius) for mesh, cloud in zip(meshes, clouds, strict=True)]
     labels = [label if mesh is not None or cloud is not None else f"{label} (empty)"
               for (label, _, _), mesh, cloud in zip(panels, meshes, clouds, strict=True)]
-    _compose(images, labels, out_path, cols=len(panels))
+    compose_tiles(images, labels, out_path, cols=len(panels))
 
 
 # --- cameras -----------------------------------------------------------------------------
@@ -211,180 +188,19 @@ def _orbit_camera(centre: np.ndarray, radius: float, up: Sequence[float], azimut
     cam_up = np.cross(back, right)
     pose = np.eye(4)
     pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, cam_up, back, eye
-    return Camera(pose=pose)
+    return Camera(pose=pose, yfov=YFOV)
 
 
 # --- rendering ---------------------------------------------------------------------------
 
 
 def _render(mesh: trimesh.Trimesh | None, points: np.ndarray | None, camera: Camera,
-            size: tuple[int, int], backend: Backend) -> np.ndarray:
-    """One view (height, width, 3) uint8."""
-    if mesh is not None and len(mesh.faces) == 0:
-        mesh = None
-    if backend in ("auto", "pyrender") and shared_offscreen_renderer(strict=backend == "pyrender") is not None:
-        try:
-            return _render_pyrender(mesh, points, camera, size)
-        except Exception as exc:  # a GL context that broke after the probe: fall back for good
-            if backend == "pyrender":
-                raise
-            _mark_pyrender_unusable(exc)
-    return _render_matplotlib(mesh, points, camera, size)
-
-
-_PYRENDER: dict[str, object] = {}
-
-
-def shared_offscreen_renderer(*, strict: bool = False) -> object | None:
-    """The process's one pyrender ``OffscreenRenderer``, or None where offscreen GL is unusable.
-
-    Made once and never deleted: pyrender's ``delete()`` terminates the EGL display, which every
-    renderer of the process shares, so a second renderer deleted would break this one. Callers
-    set ``viewport_width``/``viewport_height`` before rendering. The probe renders a tiny scene,
-    since a context can be created on systems where drawing then fails. With ``strict``, an
-    unusable renderer raises RuntimeError instead of returning None.
-    """
-    if "ok" not in _PYRENDER:
-        try:
-            import pyrender
-
-            renderer = pyrender.OffscreenRenderer(16, 16)
-            probe = pyrender.Scene()
-            probe.add(pyrender.PerspectiveCamera(yfov=YFOV))
-            renderer.render(probe)
-            _PYRENDER["renderer"], _PYRENDER["ok"] = renderer, True
-        except Exception as exc:  # no EGL / no GL driver: many exception types
-            _mark_pyrender_unusable(exc)
-    if strict and not _PYRENDER["ok"]:
-        raise RuntimeError(f"pyrender offscreen rendering unavailable: {_PYRENDER['error']}")
-    return _PYRENDER["renderer"] if _PYRENDER["ok"] else None
-
-
-def _mark_pyrender_unusable(exc: Exception) -> None:
-    _PYRENDER.update(ok=False, renderer=None, error=f"{type(exc).__name__}: {exc}")
-    warnings.warn(f"pyrender offscreen rendering unavailable ({_PYRENDER['error']}); using matplotlib",
-                  RuntimeWarning, stacklevel=3)
-
-
-def _render_pyrender(mesh: trimesh.Trimesh | None, points: np.ndarray | None, camera: Camera,
-                     size: tuple[int, int]) -> np.ndarray:
-    import pyrender
-
-    width, height = size
-    scene = pyrender.Scene(bg_color=list(BACKGROUND_RGBA), ambient_light=[0.12, 0.12, 0.12])
-    if mesh is not None:
-        material = pyrender.MetallicRoughnessMaterial(
-            baseColorFactor=list(MESH_RGBA), metallicFactor=0.0, roughnessFactor=0.9,
-            doubleSided=True)
-        scene.add(pyrender.Mesh.from_trimesh(mesh, material=material, smooth=False))
-    if points is not None:
-        # Unlit pure red: a black base colour and a red emission (points have no normals).
-        material = pyrender.MetallicRoughnessMaterial(
-            baseColorFactor=[0.0, 0.0, 0.0, 1.0], emissiveFactor=list(POINTS_RGBA[:3]))
-        primitive = pyrender.Primitive(positions=points.astype(np.float32), mode=0,
-                                       material=material)  # mode 0: GL_POINTS
-        scene.add(pyrender.Mesh([primitive]))
-    scene.add(pyrender.PerspectiveCamera(yfov=camera.yfov, aspectRatio=width / height),
-              pose=camera.pose)
-    scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=1.2), pose=camera.pose)
-    scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=2.0), pose=_key_light_pose(camera))
-    renderer = shared_offscreen_renderer(strict=True)
-    renderer.viewport_width, renderer.viewport_height = width, height
-    renderer.point_size = max(2.0, round(min(width, height) / 160.0))
-    colour, _ = renderer.render(scene, flags=pyrender.RenderFlags.SKIP_CULL_FACES)
-    return np.ascontiguousarray(colour[..., :3])
-
-
-def _key_light_pose(camera: Camera) -> np.ndarray:
-    """A light from above and to the side of the camera (pose (4, 4); it shines along its -z)."""
-    key = camera.pose.copy()
-    key[:3, :3] = key[:3, :3] @ _rotation_x(math.radians(-35.0)) @ _rotation_y(math.radians(30.0))
-    return key
-
-
-def _fallback_tessellation(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """About FALLBACK_MAX_FACES faces of similar size (painter's sorting needs small faces)."""
-    if len(mesh.faces) > FALLBACK_MAX_FACES:
-        try:
-            return mesh.simplify_quadric_decimation(face_count=FALLBACK_MAX_FACES)
-        except Exception:  # fast-simplification missing: draw every face
-            return mesh
-    max_edge = 2.0 * math.sqrt(2.0 * mesh.area / FALLBACK_MAX_FACES)
-    if max_edge > 0 and mesh.edges_unique_length.max() > max_edge:
-        vertices, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge)
-        return trimesh.Trimesh(vertices, faces, process=False)
-    return mesh
-
-
-def _fallback_shading(normals: np.ndarray, camera: Camera) -> np.ndarray:
-    """Two-sided Lambert shading of faces (f, 3) with the pyrender lights -> RGB (f, 3)."""
-    towards_camera = camera.pose[:3, 2]
-    facing = np.where((normals @ towards_camera)[:, None] < 0, -normals, normals)
-    key = _key_light_pose(camera)[:3, 2]
-    shade = 0.25 + 0.35 * (facing @ towards_camera) + 0.5 * np.clip(facing @ key, 0.0, None)
-    return np.clip(np.asarray(MESH_RGBA[:3])[None, :] * (0.4 + shade[:, None]), 0.0, 1.0)
-
-
-def _rotation_x(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _rotation_y(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _project(points: np.ndarray, camera: Camera, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """World points (n, 3) -> pixel coordinates (n, 2) and depth along the view (n,)."""
-    width, height = size
-    world_to_camera = np.linalg.inv(camera.pose)
-    local = points @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
-    depth = np.maximum(-local[:, 2], 1e-9)
-    focal = (height / 2.0) / math.tan(camera.yfov / 2.0)
-    pixels = np.stack([width / 2.0 + focal * local[:, 0] / depth,
-                       height / 2.0 - focal * local[:, 1] / depth], axis=1)
-    return pixels, depth
-
-
-def _render_matplotlib(mesh: trimesh.Trimesh | None, points: np.ndarray | None, camera: Camera,
-                       size: tuple[int, int]) -> np.ndarray:
-    """Painter's-algorithm rendering with the same camera (fallback without EGL)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.collections import PolyCollection
-    from matplotlib.figure import Figure
-
-    width, height = size
-    fig = Figure(figsize=(width / 100.0, height / 100.0), dpi=100, facecolor=BACKGROUND_RGBA)
-    canvas = FigureCanvasAgg(fig)
-    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-    ax.set_xlim(0, width)
-    ax.set_ylim(height, 0)
-    ax.axis("off")
-    polygons: list[np.ndarray] = []
-    depths: list[np.ndarray] = []
-    colours: list[np.ndarray] = []
-    if mesh is not None:
-        mesh = _fallback_tessellation(mesh)
-        pixels, depth = _project(np.asarray(mesh.vertices, dtype=np.float64), camera, size)
-        faces = np.asarray(mesh.faces)
-        polygons += list(pixels[faces])
-        depths.append(depth[faces].mean(axis=1))
-        colours.append(_fallback_shading(np.asarray(mesh.face_normals), camera))
-    if points is not None:
-        pixels, depth = _project(points, camera, size)
-        half = max(1.0, min(width, height) / 320.0)
-        square = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
-        polygons += list(pixels[:, None, :] + square[None])
-        depths.append(depth - 1e-3 * float(depth.mean()))  # a point on a face is drawn over it
-        colours.append(np.tile(np.asarray(POINTS_RGBA[:3]), (len(points), 1)))
-    if polygons:
-        order = np.argsort(-np.concatenate(depths), kind="stable")  # far to near
-        colour = np.concatenate(colours)[order]
-        ax.add_collection(PolyCollection([polygons[i] for i in order], facecolors=colour,
-                                         edgecolors=colour, linewidths=0.3))
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+            size: tuple[int, int], radius: float) -> np.ndarray:
+    """One view (height, width, 3) uint8; ``radius`` is the framed sphere's (world units)."""
+    vertices = faces = None
+    if mesh is not None and len(mesh.faces):
+        vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+    return render(vertices, faces, points, camera, size, point_tolerance=POINT_TOLERANCE * radius)
 
 
 # --- composition -------------------------------------------------------------------------
@@ -393,11 +209,12 @@ LABEL_PX = 30
 TITLE_PX = 36
 
 
-def _compose(images: list[np.ndarray], labels: list[str | None], out_path: str | Path, *,
-             cols: int, title: str | None = None) -> None:
+def compose_tiles(images: list[np.ndarray], labels: list[str | None], out_path: str | Path, *,
+                  cols: int, title: str | None = None) -> None:
     """Tiles in a grid (labels under them, optional title on top) -> one PNG, atomically.
 
-    Composed with Pillow (no matplotlib import: a fit's overlay costs only its renders)."""
+    ``images``: (height, width, 3) uint8 each, all one size; ``labels``: one per image (None or
+    "" for none); ``cols``: tiles per row. Composed with Pillow (no matplotlib import)."""
     from PIL import Image, ImageDraw
 
     rows = math.ceil(len(images) / cols)

@@ -95,3 +95,35 @@ def test_a_running_command_does_load_torch() -> None:
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                           env=ENV, timeout=120, check=True)
     assert proc.stdout.strip() == "True"
+
+
+@pytest.fixture(scope="module")
+def bare_scan(tmp_path_factory) -> Path:
+    """A small virtual scan of a stand-in chair as bare points in a PLY file (no normals, no
+    cameras: the fit estimates normals and orients them by hidden point removal)."""
+    import numpy as np
+    from plyfile import PlyData, PlyElement
+
+    from jsrte.scans.scanner import ScannerSettings, scan_mesh
+    from test_scans import stand_in_chair
+
+    folder = tmp_path_factory.mktemp("scans")
+    settings = ScannerSettings(width=80, height=60)
+    scan = scan_mesh(stand_in_chair(), rng=np.random.default_rng(0), settings=settings)
+    vertex = np.zeros(len(scan.points), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    for i, axis in enumerate("xyz"):
+        vertex[axis] = scan.points[:, i]
+    bare = folder / "bare.ply"
+    PlyData([PlyElement.describe(vertex, "vertex")]).write(str(bare))
+    return bare
+
+
+def test_fitting_a_ply_scan_does_not_import_open3d(bare_scan, tmp_path) -> None:
+    """Reading the PLY, the floor, segmentation (DBSCAN), outlier and hidden point removal and
+    normals run without Open3D (its import is about half a second of a fit's start-up)."""
+    out = tmp_path / "fit"
+    outcome = _loaded_after(["fit", str(bare_scan), "--preset", "smoke", "--hypotheses", "1",
+                             "--threads", "1", "--no-progress", "--out", str(out)])
+    assert outcome["code"] == 0
+    assert (out / "fit.json").is_file()
+    assert "open3d" not in outcome["heavy"] and "torch" in outcome["heavy"]

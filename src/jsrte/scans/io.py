@@ -123,6 +123,15 @@ def read_scan_info(ply_path: str | Path) -> ScanInfo | None:
 
 
 def _read_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points (n, 3) and normals (n, 3) or None of a point-cloud file: PLY by
+    :func:`jsrte.scans.ply.read_ply_cloud`, the other formats (and PLY layouts it leaves) by
+    Open3D, imported only for them."""
+    if path.suffix.lower() == ".ply":
+        from jsrte.scans.ply import read_ply_cloud
+
+        read = read_ply_cloud(path)
+        if read is not None:
+            return read
     import open3d as o3d
 
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):

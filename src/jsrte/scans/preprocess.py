@@ -3,8 +3,9 @@
 Floor plane by RANSAC (its normal is the up axis, the rotation axis ω), floor removal, the
 object's clusters above the floor, statistical outlier removal, hidden point removal (Katz et
 al. 2007) when the viewpoints are known, and outward normals. Planes by a seeded RANSAC
-(jsrte.geometry.planes: the same seed, the same floor), the rest with Open3D; lengths in
-scan units (metres).
+(jsrte.geometry.planes: the same seed, the same floor), the filters and normals by
+jsrte.geometry.point_ops (Open3D's semantics, without importing it); lengths in scan units
+(metres).
 """
 
 from __future__ import annotations
@@ -263,31 +264,27 @@ def remove_outliers(
     points: np.ndarray, *, neighbours: int = PrepareSettings.sor_neighbours,
     std_ratio: float = PrepareSettings.sor_std_ratio,
 ) -> np.ndarray:
-    """Statistical outlier removal (Open3D): the keep mask (n,) bool of ``points`` (n, 3)."""
-    import open3d as o3d
+    """Statistical outlier removal: the keep mask (n,) bool of ``points`` (n, 3)
+    (:func:`jsrte.geometry.point_ops.statistical_inliers`, Open3D's semantics)."""
+    from jsrte.geometry.point_ops import statistical_inliers
 
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
-    _, kept = cloud.remove_statistical_outlier(neighbours, std_ratio)
-    return _mask(len(points), kept)
+    return statistical_inliers(points, neighbours, std_ratio)
 
 
 def hidden_point_removal(
     points: np.ndarray, viewpoint: np.ndarray, *,
     radius_factor: float = PrepareSettings.hpr_radius_factor,
 ) -> np.ndarray:
-    """Katz et al. 2007 (Open3D): mask (n,) bool of the ``points`` (n, 3) visible from
-    ``viewpoint`` (3,). The spherical-flip radius is ``radius_factor`` times the extent."""
-    import open3d as o3d
+    """Katz et al. 2007: mask (n,) bool of the ``points`` (n, 3) visible from ``viewpoint`` (3,)
+    (:func:`jsrte.geometry.point_ops.visible_points`, Open3D's semantics). The spherical-flip
+    radius is ``radius_factor`` times the extent."""
+    from jsrte.geometry.point_ops import visible_points
 
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 4:
         return np.ones(len(points), dtype=bool)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     extent = float(np.linalg.norm(points.max(0) - points.min(0)))
-    viewpoint = np.asarray(viewpoint, dtype=np.float64).reshape(3)
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        _, visible = cloud.hidden_point_removal(viewpoint, radius_factor * extent)
-    return _mask(len(points), visible)
+    return visible_points(points, viewpoint, radius_factor * extent)
 
 
 @timed_stage("normals")
@@ -295,24 +292,26 @@ def estimate_normals(
     points: np.ndarray, *, viewpoints: np.ndarray | None = None, up: np.ndarray | None = None,
     settings: PrepareSettings = PrepareSettings(),
 ) -> np.ndarray:
-    """Unit normals (n, 3) of ``points`` (n, 3) by local PCA (Open3D), oriented outward.
+    """Unit normals (n, 3) of ``points`` (n, 3) by local PCA, oriented outward.
 
     Each normal is turned towards the viewpoints that see its point (hidden point removal
     decides which; a majority vote among them, the nearest viewpoint for points none sees).
     Without ``viewpoints`` (k, 3), synthetic viewpoints surround the object
     (:func:`synthetic_viewpoints`; only above it when ``up`` (3,) is given): a scan sees the
     outside of its object, so facing the viewpoints means pointing outward.
+
+    The PCA takes each point's ``normal_max_nn`` nearest neighbours within
+    ``normal_radius_factor`` median spacings (:func:`jsrte.geometry.point_ops.pca_normals`,
+    Open3D's hybrid search and eigen solver).
     """
-    import open3d as o3d
+    from jsrte.geometry.point_ops import pca_normals
 
     points = np.asarray(points, dtype=np.float64)
     radius = settings.normal_radius_factor * median_spacing(points)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius, settings.normal_max_nn))
+    normals = pca_normals(points, radius, settings.normal_max_nn)
     if viewpoints is None:
         viewpoints = synthetic_viewpoints(points, up=up, settings=settings)
-    return orient_towards_viewpoints(points, np.asarray(cloud.normals), viewpoints,
-                                     settings=settings)
+    return orient_towards_viewpoints(points, normals, viewpoints, settings=settings)
 
 
 @timed_stage("normals")
@@ -592,9 +591,3 @@ def _above_floor(points: np.ndarray, floor: Floor, s: PrepareSettings) -> np.nda
 def _require(index: np.ndarray, s: PrepareSettings, path: object, where: str) -> None:
     if len(index) < s.min_points:
         raise JsrteError(f"only {len(index)} scan points left {where} (need {s.min_points})", path)
-
-
-def _mask(n: int, kept: list[int]) -> np.ndarray:
-    mask = np.zeros(n, dtype=bool)
-    mask[np.asarray(kept, dtype=np.int64)] = True
-    return mask

@@ -344,14 +344,13 @@ def _spacing(points: np.ndarray) -> float:
 
 
 def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
-    """DBSCAN labels (n,) of ``points`` (n, 3) by Open3D (-1: noise)."""
-    import open3d as o3d
+    """DBSCAN labels (n,) of ``points`` (n, 3), -1: noise (:func:`jsrte.geometry.point_ops.dbscan_labels`:
+    Open3D's clusters, numbered by their first point)."""
+    from jsrte.geometry.point_ops import dbscan_labels
 
     if len(points) < min_points or eps <= 0:
         return np.full(len(points), -1)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        return np.asarray(cloud.cluster_dbscan(eps, min_points, print_progress=False))
+    return dbscan_labels(points, eps, min_points)
 
 
 @dataclass

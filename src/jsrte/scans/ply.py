@@ -1,0 +1,105 @@
+"""Reading a PLY point cloud's vertices with NumPy (ASCII or binary, any numeric property type).
+
+Open3D reads the same, but importing it costs about half a second of a fit's start-up. A
+layout this reader does not handle (a list property among or before the vertices of a binary
+file) is left to Open3D: :func:`read_ply_cloud` returns None.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from jsrte.errors import JsrteError
+from jsrte.formats import MAX_HEADER_LINES
+
+PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+             "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+             "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+"""NumPy type of each PLY scalar type."""
+
+Element = tuple[str, int, list[tuple[str, str | None]]]
+"""An element of a PLY header: name, count, and (name, NumPy type, None for a list) per property."""
+
+
+def read_ply_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """x, y, z (n, 3) float64 of the vertices of the PLY file ``path`` and their nx, ny, nz
+    (n, 3) float64 when it has all three (else None); no vertex element: no points.
+
+    None when a list property comes among the vertices, or before them in a binary file (left
+    to Open3D). JsrteError naming the file if it cannot be read.
+    """
+    fmt, elements, header_bytes = _header(path)
+    names = [name for name, _, _ in elements]
+    if "vertex" not in names:
+        return np.zeros((0, 3)), None
+    at = names.index("vertex")
+    vertex_names = [name for name, _ in elements[at][2]]
+    if any(kind is None for _, kind in elements[at][2]):
+        return None  # a list property among the vertices
+    try:
+        if fmt == "ascii":
+            columns = _ascii_vertices(path, header_bytes, elements, at)
+        else:
+            columns = _binary_vertices(path, header_bytes, elements, at, "<" if "little" in fmt else ">")
+    except (ValueError, OSError) as exc:
+        raise JsrteError(f"cannot read point cloud ({type(exc).__name__}: {exc})", path) from exc
+    if columns is None:
+        return None
+    points = np.column_stack([columns[vertex_names.index(axis)] for axis in ("x", "y", "z")])
+    if not all(axis in vertex_names for axis in ("nx", "ny", "nz")):
+        return points, None
+    return points, np.column_stack([columns[vertex_names.index(axis)] for axis in ("nx", "ny", "nz")])
+
+
+def _header(path: Path) -> tuple[str, list[Element], int]:
+    """(format, elements, header bytes) of a PLY file (checked before by
+    :func:`jsrte.formats.ply_header`)."""
+    fmt, elements = "", []
+    with path.open("rb") as f:
+        f.readline()
+        for _ in range(MAX_HEADER_LINES):
+            words = f.readline().decode("ascii", errors="replace").split()
+            if words == ["end_header"]:
+                return fmt, elements, f.tell()
+            if words[:1] == ["format"] and len(words) >= 2:
+                fmt = words[1]
+            elif words[:1] == ["element"] and len(words) == 3:
+                elements.append((words[1], int(words[2]), []))
+            elif words[:1] == ["property"] and elements and len(words) >= 3:
+                kind = PLY_TYPES.get(words[1]) if len(words) == 3 else None
+                elements[-1][2].append((words[-1], kind))
+    raise JsrteError("malformed PLY header (no end_header)", path)
+
+
+def _ascii_vertices(path: Path, header_bytes: int, elements: list[Element], at: int) -> list[np.ndarray]:
+    """The vertex properties' columns (each (n,) float64) of an ASCII PLY file: one line per item
+    of every element, the vertices after the items of the elements before them."""
+    name, count, properties = elements[at]
+    if count == 0:
+        return [np.zeros(0) for _ in properties]
+    skip = sum(c for _, c, _ in elements[:at])
+    with path.open("rb") as f:
+        f.seek(header_bytes)
+        rows = np.loadtxt(f, dtype=np.float64, comments=None, skiprows=skip, max_rows=count, ndmin=2)
+    if rows.shape != (count, len(properties)):
+        raise ValueError(f"{len(rows)} vertex lines of {rows.shape[1]} values, not {count} of {len(properties)}")
+    return list(rows.T)
+
+
+def _binary_vertices(path: Path, header_bytes: int, elements: list[Element], at: int,
+                     order: str) -> list[np.ndarray] | None:
+    """The vertex properties' columns (each (n,) float64) of a binary PLY file, or None when a
+    list property comes before them (items of varying size)."""
+    before = [kind for _, _, properties in elements[: at + 1] for _, kind in properties]
+    if None in before:
+        return None
+    skip = sum(c * np.dtype([(f"p{i}", order + k) for i, (_, k) in enumerate(p)]).itemsize
+               for _, c, p in elements[:at])
+    name, count, properties = elements[at]
+    dtype = np.dtype([(f"p{i}", order + kind) for i, (_, kind) in enumerate(properties)])
+    data = np.fromfile(path, dtype=dtype, count=count, offset=header_bytes + skip)
+    if len(data) < count:
+        raise ValueError(f"{len(data)} of {count} vertices")
+    return [data[field].astype(np.float64) for field in dtype.names]

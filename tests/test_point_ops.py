@@ -179,6 +179,9 @@ def test_hidden_point_removal_of_too_few_or_flat_points_sees_all():
     assert visible_points(np.eye(3), np.array([5.0, 5.0, 5.0]), 100.0).all()
     flat = np.c_[np.random.default_rng(9).random((50, 2)), np.zeros(50)]
     assert visible_points(flat, np.array([0.5, 0.5, 0.0]), 100.0).all()
+    cloud = np.random.default_rng(9).random((50, 3))
+    assert visible_points(cloud, cloud[7], 100.0).all()  # a point at the viewpoint: no direction to it
+    assert not visible_points(cloud, np.array([0.5, 0.5, 5.0]), 100.0).all()
 
 
 # --- reading PLY files --------------------------------------------------------------------------------

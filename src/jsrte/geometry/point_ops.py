@@ -45,14 +45,12 @@ def statistical_inliers(points: np.ndarray, neighbours: int, std_ratio: float) -
     points = np.ascontiguousarray(points, dtype=np.float64)
     if neighbours < 1 or std_ratio <= 0:
         raise ValueError("the number of neighbours and the standard deviation ratio must be positive")
-    if len(points) == 0:
-        return np.zeros(0, dtype=bool)
+    if len(points) < 2:  # none, or no spread: Open3D's threshold is NaN and keeps nothing
+        return np.zeros(len(points), dtype=bool)
     k = min(neighbours, len(points))
     distance2, _ = _knn(points, k)
     score = _sequential_sum(np.sqrt(distance2)) / k
     valid = score > 0
-    if len(points) < 2:  # no spread: Open3D's threshold is NaN and keeps nothing
-        return np.zeros(len(points), dtype=bool)
     mean = float(np.cumsum(np.where(valid, score, 0.0))[-1]) / len(points)
     deviation2 = np.where(valid, (score - mean) * (score - mean), 0.0)
     std = np.sqrt(float(np.cumsum(deviation2)[-1]) / (len(points) - 1))
@@ -79,7 +77,8 @@ def visible_points(points: np.ndarray, viewpoint: np.ndarray, radius: float) -> 
 
     The points are flipped about a sphere of ``radius`` around the viewpoint; the visible ones
     are the vertices of the convex hull of the flipped points and the viewpoint. Fewer than four
-    points, or points all in one plane with the viewpoint (no hull), are all visible.
+    points, points all in one plane with the viewpoint (no hull), or a point at the viewpoint
+    are all visible (Open3D raises an error on the last two).
     """
     from scipy.spatial import ConvexHull, QhullError
 
@@ -90,10 +89,11 @@ def visible_points(points: np.ndarray, viewpoint: np.ndarray, radius: float) -> 
         return np.ones(len(points), dtype=bool)
     offset = points - np.asarray(viewpoint, dtype=np.float64).reshape(3)
     norm = np.sqrt(_distance2(offset, np.zeros(3)))[:, None]
-    flipped = offset + 2.0 * (radius - norm) * offset / norm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        flipped = offset + 2.0 * (radius - norm) * offset / norm
     try:
         hull = ConvexHull(np.vstack([flipped, np.zeros((1, 3))]), qhull_options="Qt")
-    except QhullError:
+    except (QhullError, ValueError):  # flat, or a point at the viewpoint itself (no direction)
         return np.ones(len(points), dtype=bool)
     visible = np.zeros(len(points) + 1, dtype=bool)
     visible[hull.vertices] = True

@@ -32,9 +32,10 @@ print(json.dumps({"code": code, "heavy": [m for m in heavy if m in sys.modules]}
 """
 
 
-def _loaded_after(args: list[str]) -> dict:
-    """Run ``jsrte ARGS`` in a new interpreter: {"code": exit status, "heavy": heavy modules it imported}."""
-    proc = subprocess.run([sys.executable, "-c", PROBE, json.dumps(args), json.dumps(HEAVY)], capture_output=True,
+def _loaded_after(args: list[str], watched: tuple[str, ...] = HEAVY) -> dict:
+    """Run ``jsrte ARGS`` in a new interpreter: {"code": exit status, "heavy": the ``watched``
+    modules it imported}."""
+    proc = subprocess.run([sys.executable, "-c", PROBE, json.dumps(args), json.dumps(watched)], capture_output=True,
                           text=True, env=ENV, timeout=120, check=True)
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -118,12 +119,24 @@ def bare_scan(tmp_path_factory) -> Path:
     return bare
 
 
-def test_fitting_a_ply_scan_does_not_import_open3d(bare_scan, tmp_path) -> None:
+def test_fitting_a_ply_scan_imports_neither_open3d_nor_gl(bare_scan, tmp_path) -> None:
     """Reading the PLY, the floor, segmentation (DBSCAN), outlier and hidden point removal and
-    normals run without Open3D (its import is about half a second of a fit's start-up)."""
+    normals run without Open3D (its import is about half a second of a fit's start-up), and the
+    overlay is drawn without pyrender, OpenGL or matplotlib: the scan's red points over the
+    gray fitted mesh."""
+    import numpy as np
+    from PIL import Image
+
     out = tmp_path / "fit"
     outcome = _loaded_after(["fit", str(bare_scan), "--preset", "smoke", "--hypotheses", "1",
-                             "--threads", "1", "--no-progress", "--out", str(out)])
+                             "--threads", "1", "--no-progress", "--out", str(out)],
+                            watched=(*HEAVY, "OpenGL", "pyglet"))
     assert outcome["code"] == 0
     assert (out / "fit.json").is_file()
-    assert "open3d" not in outcome["heavy"] and "torch" in outcome["heavy"]
+    assert "torch" in outcome["heavy"]
+    assert not {"open3d", "pyrender", "OpenGL", "pyglet", "matplotlib"} & set(outcome["heavy"])
+    with Image.open(out / "overlay.png") as image:
+        rgb = np.asarray(image.convert("RGB"), dtype=np.int64)
+    red = (rgb[..., 0] > 150) & (rgb[..., 1] < 80) & (rgb[..., 2] < 80)
+    gray = (np.ptp(rgb, axis=2) < 10) & (rgb[..., 0] > 50) & (rgb[..., 0] < 230)
+    assert red.sum() > 100 and gray.sum() > 1000

@@ -9,7 +9,8 @@ which Table 2 (shapes 0..29) does not use), then run variants of the ``fast`` fi
 
 Each ``KEY=VALUE`` replaces a field of the fit settings of ``--preset`` (default ``fast``; numbers
 and booleans as JSON).
-Rows are written as they finish; the mean is printed at the end.
+Rows are written as they finish (with the fit's flag and the quality measures the flag reads); the
+mean is printed at the end.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from pathlib import Path
 
 PARTS = ("yaw screening", "starts", "translation search", "code scoring", "survivors", "polish", "final losses")
 """The parts of a Levenberg–Marquardt solve whose decoder evaluations are reported apart."""
+FLAG_MEASURES = ("inlier_share", "loss_margin_rel", "free_space_violation", "latent_mahalanobis_ratio")
+"""The quality measures the flag reads (jsrte.fit.quality.RULE), one column each."""
 
 
 def settings_from(pairs: list[str], preset: str = "fast"):
@@ -90,7 +93,9 @@ def main() -> None:
                      **{f"ev_{part.replace(' ', '_')}": result.info.get("decoder_evaluations_by_part", {}).get(part, 0)
                         for part in PARTS},
                      "ev_meshing": profile.evaluations.get("meshing", 0),
-                     "ev_quality": profile.evaluations.get("quality", 0)})
+                     "ev_quality": profile.evaluations.get("quality", 0),
+                     "flag": result.flag,
+                     **{f"q_{k}": (result.quality or {}).get(k) for k in FLAG_MEASURES}})
         print(rows[-1], flush=True)
         with open(args.out, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))

@@ -67,6 +67,9 @@ class ScreenSettings:
     """Line-of-sight free-space samples at which the fitted shape's violation is measured."""
     residual_cap: float = 0.1
     """A point's |SDF| counts at most this many candidate radii."""
+    unexplained_m: float = 0.05
+    """A candidate point farther than this many candidate radii from the fitted surface is one
+    the fit leaves unexplained (recorded, not scored: :func:`screen_terms`)."""
     freespace_weight: float = 1.0
     """Weight of the share of free-space samples inside the fitted shape."""
     rank_weight: float = 0.02
@@ -91,7 +94,8 @@ class Screened:
     query : the candidate's SDF query
     result : the quick fit
     score : the screen score (lower is better)
-    parts : its terms (``residual``, ``freespace``) and the candidate's radius (m)
+    parts : its terms (``residual``, ``freespace``, ``rank``), the candidate's radius (m) and the
+        share of its points the fit leaves ``unexplained``
     """
 
     model: str
@@ -124,19 +128,25 @@ def screen_terms(model: DeepSdfModel, query: SdfQuery, result: FitResult, settin
                  rng: np.random.Generator) -> dict[str, float]:
     """The screen score's terms of ``result`` fitted to ``query``: ``residual`` (mean capped
     |SDF| at the query's surface points over their bounding-sphere radius), ``freespace`` (share
-    of the line-of-sight samples inside the fitted shape) and ``radius`` (m)."""
+    of the line-of-sight samples inside the fitted shape) and ``radius`` (m); and, recorded
+    beside them but not scored, ``unexplained``: the share of those points farther than
+    ``unexplained_m`` radii from the fitted surface (a chair fitted to a chair and a table
+    merged into one candidate leaves half or more of its points there, a chair alone a few
+    percent)."""
     from jsrte.metrics.surface import bounding_sphere
 
     surface = query.surface
     radius = max(bounding_sphere(surface)[1], 1e-9)
     pick = rng.permutation(len(surface))[: settings.surface_points]
-    residual = np.minimum(np.abs(predicted_sdf(model, result, surface[pick])) / radius, settings.residual_cap)
+    distance = np.abs(predicted_sdf(model, result, surface[pick])) / radius
+    residual = np.minimum(distance, settings.residual_cap)
     freespace = 0.0
     if query.n_refine_only:
         rays = query.points[len(query.points) - query.n_refine_only:]
         pick = rng.permutation(len(rays))[: settings.freespace_points]
         freespace = float((predicted_sdf(model, result, rays[pick]) < 0).mean())
-    return {"residual": float(residual.mean()), "freespace": freespace, "radius": float(radius)}
+    return {"residual": float(residual.mean()), "freespace": freespace, "radius": float(radius),
+            "unexplained": float((distance > settings.unexplained_m).mean())}
 
 
 def screen(model: DeepSdfModel, name: str, query: SdfQuery, candidate: int | None, settings: ScreenSettings,

@@ -81,6 +81,11 @@ class ScreenSettings:
     whole_explains: float = 1.3
     """... and when its fitted surface lies at most this many times as far from its best
     part's points as the part's own fitted surface (:func:`explained_ratio`)."""
+    slab_m: float = 0.08
+    """A candidate thinner than this (m) across its thinnest direction (:func:`thickness`) is a
+    slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs
+    are screened only where fewer than ``candidates`` others are, and are chosen only where
+    nothing else was screened (0: no slabs)."""
 
 
 @dataclass
@@ -210,7 +215,7 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     queries: dict[str, SdfQuery] = {}
     screened: list[Screened] = []
     for name, cands in per_model.items():
-        for k in screened_candidates(cands, settings.candidates):
+        for k in screened_candidates(cands, settings.candidates, slabs(cands, settings.slab_m)):
             key = _points_key(cands, k)
             if key not in queries:
                 with stage("screen queries"):
@@ -225,7 +230,9 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     own = [s for s in screened if s.model == winner]
     covered = _covered(per_model[winner], own, models[winner], settings, seed)
     scores = {s.candidate: s.score for s in own}
-    best = min((s for s in own if s.candidate not in covered),
+    thin = slabs(per_model[winner], settings.slab_m)
+    eligible = [s for s in own if s.candidate not in covered]
+    best = min([s for s in eligible if s.candidate not in thin] or eligible,
                key=lambda s: _best_within(per_model[winner].segmentation.candidates, scores, s.candidate))
     for s in own:
         record = s.to_json() | ({"covered": True} if s.candidate in covered else {})
@@ -241,12 +248,14 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     return Choice(query, models[best.model], screened, classes)
 
 
-def screened_candidates(cands: object, n: int) -> list[int]:
+def screened_candidates(cands: object, n: int, thin: set[int] = frozenset()) -> list[int]:
     """Positions of the candidates of ``cands`` (``ScanCandidates``) to screen: the best ``n``
-    by class rank among those not split, the wholes they were split from, and every part of
-    those wholes (so that each whole can be weighed against all its parts)."""
+    by class rank among those not split (slabs, ``thin``, after all others), the wholes they
+    were split from, and every part of those wholes (so that each whole can be weighed against
+    all its parts)."""
     candidates = cands.segmentation.candidates
-    picks = list(cands.valid()[:n])
+    valid = cands.valid()
+    picks = ([k for k in valid if k not in thin] + [k for k in valid if k in thin])[:n]
     for k in list(picks):
         above = candidates[k].parent
         while above is not None:
@@ -261,6 +270,34 @@ def screened_candidates(cands: object, n: int) -> list[int]:
                 if candidates[part].parts:
                     wholes.append(part)
     return picks
+
+
+def thickness(points: np.ndarray) -> float:
+    """Extent (m) of ``points`` (n, 3) across their thinnest direction: the 5th to 95th
+    percentile along their least principal axis (a wall's remnant: 3-6 cm; a chair: 10 cm or
+    more, on the tuning rooms)."""
+    if len(points) < 4:
+        return 0.0
+    centred = points - points.mean(axis=0)
+    axis = np.linalg.eigh(np.cov(centred.T))[1][:, 0]
+    return float(np.ptp(np.percentile(centred @ axis, [5, 95])))
+
+
+def slabs(cands: object, slab_m: float) -> set[int]:
+    """Positions of the valid candidates of ``cands`` (``ScanCandidates``) thinner than
+    ``slab_m`` (:func:`thickness`); each candidate's ``thickness_m`` goes to its summary."""
+    if slab_m <= 0:
+        return set()
+    segmented = cands.segmented
+    points = np.asarray(segmented.cloud.points)[segmented.index]
+    thin = set()
+    for k in cands.valid():
+        candidate = cands.segmentation.candidates[k]
+        if "thickness_m" not in candidate.summary:
+            candidate.summary["thickness_m"] = round(thickness(points[candidate.index]), 4)
+        if candidate.summary["thickness_m"] < slab_m:
+            thin.add(k)
+    return thin
 
 
 def split_or_whole(candidates: list, scores: dict[int, float], explains: object = None,

@@ -190,3 +190,62 @@ def test_a_chair_beside_a_box_is_chosen_without_the_box(tmp_path, chair_model):
     picked = seg.candidates[record["chosen"]].index
     assert "screen" in record["candidates"][pair[0]]  # the whole competed
     assert np.mean(labels[picked] == 0) > 0.9 and len(picked) > 0.7 * np.sum(labels == 0)
+
+
+def test_screen_terms_count_the_points_the_fit_leaves_unexplained():
+    """A sphere fitted exactly to 700 points of a 1 m sphere, beside 300 points of a neighbour's
+    face 0.3-0.8 m off it (one merged candidate): 30% unexplained, each capped in the residual."""
+    import torch
+
+    from analytic import SphereDecoder
+    from jsrte.fit.query import SdfQuery
+    from jsrte.fit.screen import ScreenSettings, screen_terms
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.model.checkpoint import DeepSdfModel
+    from jsrte.result import FitResult
+
+    rng = np.random.default_rng(0)
+    centre = np.array([2.0, 0.5, -1.0])
+    ball = rng.normal(size=(700, 3))
+    ball = centre + ball / np.linalg.norm(ball, axis=1, keepdims=True)
+    face = centre + np.column_stack([rng.uniform(1.3, 1.8, 300), rng.uniform(-0.2, 0.2, 300), np.zeros(300)])
+    surface = np.concatenate([ball, face])
+    query = SdfQuery(surface, np.zeros(len(surface)), surface)
+    model = DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "sphere"})
+    fitted = FitResult("jsrte", Sim3(2.0, np.eye(3), centre), np.zeros(2, np.float32), None, 0.0, {})
+    terms = screen_terms(model, query, fitted, ScreenSettings(), rng)
+    assert terms["unexplained"] == pytest.approx(0.3)
+    assert terms["residual"] == pytest.approx(0.3 * ScreenSettings().residual_cap)  # the face's points capped
+    alone = SdfQuery(ball, np.zeros(len(ball)), ball)
+    assert screen_terms(model, alone, fitted, ScreenSettings(), rng)["unexplained"] < 1e-3
+
+
+def _noisy_plane(rng: np.random.Generator, n: int, origin: tuple[float, float, float]) -> np.ndarray:
+    """A 1 m x 1 m vertical patch of a wall (x-y plane at z = origin z), 1 cm depth noise."""
+    return np.asarray(origin) + np.column_stack([rng.uniform(0, 1, n), rng.uniform(0, 1, n), rng.normal(0, 0.01, n)])
+
+
+def test_slabs_are_screened_after_every_other_candidate():
+    """Two wall remnants outrank a box and a chair by proportions: the three screened are the
+    box, the chair and the better remnant; without the slab rule the chair is left out."""
+    from types import SimpleNamespace
+
+    from jsrte.fit.screen import screened_candidates, slabs, thickness
+    from jsrte.scans.segment import Candidate
+
+    rng = np.random.default_rng(0)
+    chair = held_out("chair").sample(3000, seed=0)
+    crate = box((0.5, 0.6, 0.4)).sample(3000, seed=0)
+    pieces = [_noisy_plane(rng, 800, (3.0, 0.0, 2.0)), _noisy_plane(rng, 800, (-3.0, 0.0, 2.0)),
+              crate + [1.5, 0.0, 0.0], chair + [-1.5, 0.0, 0.0]]
+    points = np.concatenate(pieces)
+    starts = np.cumsum([0] + [len(p) for p in pieces])
+    candidates = [Candidate(index=np.arange(starts[i], starts[i + 1]), summary={"rank": 0.1 * i}) for i in range(4)]
+    scan = SimpleNamespace(cloud=SimpleNamespace(points=points), index=np.arange(len(points)))
+    cands = SimpleNamespace(segmentation=SimpleNamespace(candidates=candidates), valid=lambda: [0, 1, 2, 3],
+                            segmented=scan)
+    assert thickness(pieces[0]) < 0.05 and thickness(pieces[3]) > 0.1  # a wall's remnant; a chair
+    thin = slabs(cands, 0.08)
+    assert thin == {0, 1} and candidates[2].summary["thickness_m"] == pytest.approx(0.4, abs=0.05)
+    assert screened_candidates(cands, 3) == [0, 1, 2]
+    assert screened_candidates(cands, 3, thin) == [2, 3, 0]

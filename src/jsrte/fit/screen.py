@@ -67,6 +67,9 @@ class ScreenSettings:
     """Line-of-sight free-space samples at which the fitted shape's violation is measured."""
     residual_cap: float = 0.1
     """A point's |SDF| counts at most this many candidate radii."""
+    unexplained_m: float = 0.05
+    """A candidate point farther than this many candidate radii from the fitted surface is one
+    the fit leaves unexplained (recorded, not scored: :func:`screen_terms`)."""
     freespace_weight: float = 1.0
     """Weight of the share of free-space samples inside the fitted shape."""
     rank_weight: float = 0.02
@@ -78,6 +81,11 @@ class ScreenSettings:
     whole_explains: float = 1.3
     """... and when its fitted surface lies at most this many times as far from its best
     part's points as the part's own fitted surface (:func:`explained_ratio`)."""
+    slab_m: float = 0.08
+    """A candidate thinner than this (m) across its thinnest direction (:func:`thickness`) is a
+    slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs
+    are screened only where fewer than ``candidates`` others are, and are chosen only where
+    nothing else was screened (0: no slabs)."""
 
 
 @dataclass
@@ -91,7 +99,8 @@ class Screened:
     query : the candidate's SDF query
     result : the quick fit
     score : the screen score (lower is better)
-    parts : its terms (``residual``, ``freespace``) and the candidate's radius (m)
+    parts : its terms (``residual``, ``freespace``, ``rank``), the candidate's radius (m) and the
+        share of its points the fit leaves ``unexplained``
     """
 
     model: str
@@ -124,19 +133,25 @@ def screen_terms(model: DeepSdfModel, query: SdfQuery, result: FitResult, settin
                  rng: np.random.Generator) -> dict[str, float]:
     """The screen score's terms of ``result`` fitted to ``query``: ``residual`` (mean capped
     |SDF| at the query's surface points over their bounding-sphere radius), ``freespace`` (share
-    of the line-of-sight samples inside the fitted shape) and ``radius`` (m)."""
+    of the line-of-sight samples inside the fitted shape) and ``radius`` (m); and, recorded
+    beside them but not scored, ``unexplained``: the share of those points farther than
+    ``unexplained_m`` radii from the fitted surface (a chair fitted to a chair and a table
+    merged into one candidate leaves half or more of its points there, a chair alone a few
+    percent)."""
     from jsrte.metrics.surface import bounding_sphere
 
     surface = query.surface
     radius = max(bounding_sphere(surface)[1], 1e-9)
     pick = rng.permutation(len(surface))[: settings.surface_points]
-    residual = np.minimum(np.abs(predicted_sdf(model, result, surface[pick])) / radius, settings.residual_cap)
+    distance = np.abs(predicted_sdf(model, result, surface[pick])) / radius
+    residual = np.minimum(distance, settings.residual_cap)
     freespace = 0.0
     if query.n_refine_only:
         rays = query.points[len(query.points) - query.n_refine_only:]
         pick = rng.permutation(len(rays))[: settings.freespace_points]
         freespace = float((predicted_sdf(model, result, rays[pick]) < 0).mean())
-    return {"residual": float(residual.mean()), "freespace": freespace, "radius": float(radius)}
+    return {"residual": float(residual.mean()), "freespace": freespace, "radius": float(radius),
+            "unexplained": float((distance > settings.unexplained_m).mean())}
 
 
 def screen(model: DeepSdfModel, name: str, query: SdfQuery, candidate: int | None, settings: ScreenSettings,
@@ -200,7 +215,7 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     queries: dict[str, SdfQuery] = {}
     screened: list[Screened] = []
     for name, cands in per_model.items():
-        for k in screened_candidates(cands, settings.candidates):
+        for k in screened_candidates(cands, settings.candidates, slabs(cands, settings.slab_m)):
             key = _points_key(cands, k)
             if key not in queries:
                 with stage("screen queries"):
@@ -215,7 +230,9 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     own = [s for s in screened if s.model == winner]
     covered = _covered(per_model[winner], own, models[winner], settings, seed)
     scores = {s.candidate: s.score for s in own}
-    best = min((s for s in own if s.candidate not in covered),
+    thin = slabs(per_model[winner], settings.slab_m)
+    eligible = [s for s in own if s.candidate not in covered]
+    best = min([s for s in eligible if s.candidate not in thin] or eligible,
                key=lambda s: _best_within(per_model[winner].segmentation.candidates, scores, s.candidate))
     for s in own:
         record = s.to_json() | ({"covered": True} if s.candidate in covered else {})
@@ -231,12 +248,14 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     return Choice(query, models[best.model], screened, classes)
 
 
-def screened_candidates(cands: object, n: int) -> list[int]:
+def screened_candidates(cands: object, n: int, thin: set[int] = frozenset()) -> list[int]:
     """Positions of the candidates of ``cands`` (``ScanCandidates``) to screen: the best ``n``
-    by class rank among those not split, the wholes they were split from, and every part of
-    those wholes (so that each whole can be weighed against all its parts)."""
+    by class rank among those not split (slabs, ``thin``, after all others), the wholes they
+    were split from, and every part of those wholes (so that each whole can be weighed against
+    all its parts)."""
     candidates = cands.segmentation.candidates
-    picks = list(cands.valid()[:n])
+    valid = cands.valid()
+    picks = ([k for k in valid if k not in thin] + [k for k in valid if k in thin])[:n]
     for k in list(picks):
         above = candidates[k].parent
         while above is not None:
@@ -251,6 +270,34 @@ def screened_candidates(cands: object, n: int) -> list[int]:
                 if candidates[part].parts:
                     wholes.append(part)
     return picks
+
+
+def thickness(points: np.ndarray) -> float:
+    """Extent (m) of ``points`` (n, 3) across their thinnest direction: the 5th to 95th
+    percentile along their least principal axis (a wall's remnant: 3-6 cm; a chair: 10 cm or
+    more, on the tuning rooms)."""
+    if len(points) < 4:
+        return 0.0
+    centred = points - points.mean(axis=0)
+    axis = np.linalg.eigh(np.cov(centred.T))[1][:, 0]
+    return float(np.ptp(np.percentile(centred @ axis, [5, 95])))
+
+
+def slabs(cands: object, slab_m: float) -> set[int]:
+    """Positions of the valid candidates of ``cands`` (``ScanCandidates``) thinner than
+    ``slab_m`` (:func:`thickness`); each candidate's ``thickness_m`` goes to its summary."""
+    if slab_m <= 0:
+        return set()
+    segmented = cands.segmented
+    points = np.asarray(segmented.cloud.points)[segmented.index]
+    thin = set()
+    for k in cands.valid():
+        candidate = cands.segmentation.candidates[k]
+        if "thickness_m" not in candidate.summary:
+            candidate.summary["thickness_m"] = round(thickness(points[candidate.index]), 4)
+        if candidate.summary["thickness_m"] < slab_m:
+            thin.add(k)
+    return thin
 
 
 def split_or_whole(candidates: list, scores: dict[int, float], explains: object = None,

@@ -14,6 +14,7 @@ from __future__ import annotations
 import atexit
 import json
 import re
+import resource
 import shutil
 import signal
 import tempfile
@@ -30,6 +31,9 @@ from jsrte.errors import JsrteError
 
 CASE_SECONDS = 30
 """A case running longer than this counts as a hang."""
+CASE_MEMORY = 4 << 30
+"""Bytes of address space a case may add; an allocation beyond fails (a file of a few kB once
+made Open3D fill 22 GB before the kernel killed the test process)."""
 ODD_TOKENS = ("nan", "-nan", "inf", "-inf", "-1", "0", "1e308", "-1e308", "1e-320", "99999999999999999999",
               "abc", "", "0x10", "3.5", "-0")
 
@@ -243,6 +247,24 @@ def _time_limit(seconds: int):
         signal.signal(signal.SIGALRM, previous)
 
 
+@contextmanager
+def _memory_limit(extra: int):
+    """Address space capped at its current size plus ``extra`` bytes (Linux; no cap elsewhere)."""
+    try:
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * resource.getpagesize()
+    except OSError:
+        yield
+        return
+    previous = resource.getrlimit(resource.RLIMIT_AS)
+    cap = used + extra if previous[0] == resource.RLIM_INFINITY else min(previous[0], used + extra)
+    resource.setrlimit(resource.RLIMIT_AS, (cap, previous[1]))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, previous)
+
+
 def run_case(fmt: str, data: bytes) -> str:
     """Read ``data`` as a file of ``fmt``: "result" or "error" (a JsrteError). Anything else (another
     exception, a hang, a result failing its checks) raises AssertionError naming the case."""
@@ -260,10 +282,11 @@ def run_case(fmt: str, data: bytes) -> str:
         if fmt == "model":  # the readable description beside it, as save_model writes it
             shutil.copy(source.with_suffix(".json"), path.with_suffix(".json"))
         try:
-            with _time_limit(CASE_SECONDS):
+            with _time_limit(CASE_SECONDS), _memory_limit(CASE_MEMORY):
                 READERS[fmt](path)
         except JsrteError as exc:
             assert "\n" not in str(exc) and str(exc), f"{fmt}: a JsrteError must be one non-empty line"
+            assert "bad_alloc" not in str(exc), f"{fmt}: over {CASE_MEMORY >> 30} GB allocated for {data[:200]!r}"
             return "error"
         except AssertionError as exc:
             raise AssertionError(f"{fmt}: a wrong result was returned ({exc}) for {data[:200]!r}") from None

@@ -14,8 +14,10 @@ library returns zeros or garbage for the points it never read.
 
 from __future__ import annotations
 
+import re
+import struct
 from pathlib import Path
-from typing import Literal
+from typing import BinaryIO, Literal
 
 from jsrte.errors import JsrteError
 
@@ -161,55 +163,141 @@ def check_ply_complete(path: Path) -> None:
 
 
 PCD_ITEM = {"1": 1, "2": 2, "4": 4, "8": 8}
+"""Bytes of a PCD field by its SIZE entry."""
 MAX_PCD_COUNT = 4096
 """Largest COUNT of a PCD field (descriptors have tens to hundreds; Open3D allocates what it says)."""
 PCD_POINT_FIELDS = ("x", "y", "z", "normal_x", "normal_y", "normal_z")
-"""Bytes of a PCD field by its SIZE entry."""
+PCD_BINARY_READABLE = {("F", 4), ("I", 1), ("I", 2), ("I", 4), ("U", 1), ("U", 2), ("U", 4)}
+"""(TYPE, SIZE) of the binary fields Open3D decodes (it returns 0 for the others, e.g. 8-byte floats)."""
+PCD_KEYWORDS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
+"""PCD header entries, in the order the format requires."""
+PCD_DATA = ("ascii", "binary", "binary_compressed")
+PCD_LINE_BYTES = 1023
+"""Longest line of a PCD file Open3D reads at once (it reads a longer one as several lines)."""
+MAX_PCD_INT = 2**31 - 1
+"""Largest WIDTH, HEIGHT or POINTS Open3D holds (a C int)."""
+LZF_MAX_RATIO = 88
+"""LZF (binary_compressed) expands data at most 88-fold (3 bytes into 264)."""
+_PCD_TEXT = re.compile(rb"[\t\n\r\x20-\x7e]*")
+_PCD_WORD = re.compile(rb"[^\t\n\r ]+")
+"""A word of a PCD data line, as Open3D splits it."""
+
+
+def pcd_header(f: BinaryIO, path: Path) -> dict[str, list[str]]:
+    """Entries (keyword -> values) of the header of the PCD file ``f``, open at its start; ``f`` is
+    left at the first byte of data. Lines are read as Open3D reads them.
+
+    JsrteError naming the file for a header Open3D would read otherwise than it is written (it
+    matches keywords by prefix and case, stops at the first line starting ``DATA``, and leaves an
+    entry it cannot read unset, then sizes its arrays from whatever number that memory held): an
+    unknown, repeated or out-of-order entry, a control or non-ASCII byte, no DATA line.
+    """
+    entries: dict[str, list[str]] = {}
+    for _ in range(MAX_HEADER_LINES):
+        line = f.readline(PCD_LINE_BYTES)
+        if not line:
+            break
+        words = line.split()
+        if not words or words[0].startswith(b"#"):
+            continue
+        text = line.decode("ascii", errors="replace").strip()
+        if not _PCD_TEXT.fullmatch(line):
+            raise JsrteError(f"malformed PCD header (a control or non-ASCII byte in line {text[:20]!r})", path)
+        key = words[0].decode()
+        if key not in PCD_KEYWORDS:
+            raise JsrteError(f"malformed PCD header (line {text[:40]!r})", path)
+        last = next(reversed(entries), None)
+        if last is not None and PCD_KEYWORDS.index(key) <= PCD_KEYWORDS.index(last):
+            raise JsrteError(f"malformed PCD header ({key} after {last}; the order is {' '.join(PCD_KEYWORDS)})",
+                             path)
+        entries[key] = [w.decode() for w in words[1:]]
+        if key == "DATA":
+            return entries
+    raise JsrteError("malformed PCD header (no DATA line)", path)
+
+
+def _pcd_int(text: str) -> int:
+    """A WIDTH, HEIGHT, POINTS or COUNT value: decimal digits only (as Open3D reads them), at most a C int."""
+    if not text.isascii() or not text.isdigit() or int(text) > MAX_PCD_INT:
+        raise ValueError(text)
+    return int(text)
+
+
+def _pcd_layout(entries: dict[str, list[str]], path: Path) -> tuple[int, int, int, str]:
+    """(points, values per point, bytes per point, data kind) of a PCD header; JsrteError naming the
+    file if absurd."""
+    try:
+        points = _pcd_int(entries["POINTS"][0])
+        width, height = _pcd_int(entries["WIDTH"][0]), _pcd_int(entries["HEIGHT"][0])
+        sizes = [PCD_ITEM[s] for s in entries["SIZE"]]
+        counts = [_pcd_int(c) for c in entries.get("COUNT", ["1"] * len(sizes))]
+        types = entries["TYPE"]
+        names = entries["FIELDS"]
+        data = entries["DATA"][0]
+    except (KeyError, IndexError, ValueError):
+        raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE, COUNT, WIDTH, HEIGHT, POINTS or DATA)",
+                         path) from None
+    if not len(names) == len(types) == len(counts) == len(sizes):
+        raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE and COUNT disagree)", path)
+    if width * height != points:
+        raise JsrteError(f"malformed PCD header (WIDTH {width} x HEIGHT {height} is not POINTS {points})", path)
+    if any(not 1 <= c <= MAX_PCD_COUNT for c in counts) or any(
+            c != 1 for n, c in zip(names, counts, strict=True) if n in PCD_POINT_FIELDS):
+        raise JsrteError(f"malformed PCD header (COUNT {' '.join(map(str, counts))[:60]})", path)
+    if any(t not in ("F", "I", "U") for t in types):
+        raise JsrteError(f"malformed PCD header (TYPE {' '.join(types)[:40]})", path)
+    if data not in PCD_DATA:
+        raise JsrteError(f"malformed PCD header (DATA {data[:30]!r}; use {', '.join(PCD_DATA)})", path)
+    _check_fields(names, ("normal_x", "normal_y", "normal_z"), path)
+    unreadable = [f"{n} ({t} {s})" for n, t, s in zip(names, types, sizes, strict=True)
+                  if n in PCD_POINT_FIELDS and (t, s) not in PCD_BINARY_READABLE]
+    if data != "ascii" and unreadable:
+        raise JsrteError(f"binary PCD fields {', '.join(unreadable)[:60]} are not readable (Open3D reads them as "
+                         "0); store coordinates and normals as 4-byte floats (TYPE F, SIZE 4)", path)
+    return points, sum(counts), sum(s * c for s, c in zip(sizes, counts, strict=True)), data
 
 
 def check_pcd_complete(path: Path) -> None:
-    """JsrteError if an uncompressed PCD file is shorter than its header's POINTS declare."""
-    fields: dict[str, list[str]] = {}
+    """JsrteError naming the file if a PCD file's header is malformed or read otherwise by Open3D
+    (see :func:`pcd_header`), or the file holds fewer points than its header declares: Open3D
+    allocates the declared points before reading them and leaves those it does not find as
+    whatever the memory held."""
     with path.open("rb") as f:
-        for _ in range(MAX_HEADER_LINES):
-            line = f.readline()
-            if not line:
-                return  # no DATA line: Open3D finds no points, reported as such
-            words = line.decode("ascii", errors="replace").split()
-            if words and not words[0].startswith("#"):
-                fields[words[0].upper()] = words[1:]
-                if words[0].upper() == "DATA":
-                    break
+        points, values, point_bytes, data = _pcd_layout(pcd_header(f, path), path)
         header_bytes = f.tell()
-        try:
-            points = int(fields["POINTS"][0])
-            width, height = int(fields["WIDTH"][0]), int(fields["HEIGHT"][0])
-            sizes = [PCD_ITEM[s] for s in fields["SIZE"]]
-            counts = [int(c) for c in fields.get("COUNT", ["1"] * len(sizes))]
-            types = fields["TYPE"]
-            names = fields["FIELDS"]
-            data = fields["DATA"][0].lower()
-        except (KeyError, IndexError, ValueError):
-            raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE, COUNT, WIDTH, HEIGHT, POINTS or DATA)",
-                             path) from None
-        if not len(names) == len(types) == len(counts) == len(sizes) or points < 0 or min(counts, default=1) < 0:
-            raise JsrteError("malformed PCD header (FIELDS, SIZE, TYPE and COUNT disagree)", path)
-        if width < 0 or height < 0 or width * height != points:
-            raise JsrteError(f"malformed PCD header (WIDTH {width} x HEIGHT {height} is not POINTS {points})", path)
-        if any(not 1 <= c <= MAX_PCD_COUNT for c in counts) or any(
-                c != 1 for n, c in zip(names, counts, strict=True) if n in PCD_POINT_FIELDS):
-            raise JsrteError(f"malformed PCD header (COUNT {' '.join(map(str, counts))[:60]})", path)
-        if any(t not in ("F", "I", "U") for t in types):
-            raise JsrteError(f"malformed PCD header (TYPE {' '.join(types)[:40]})", path)
-        _check_fields(names, ("normal_x", "normal_y", "normal_z"), path)
         if data == "ascii":
-            lines = sum(1 for line in f if line.strip())
-            if lines < points:
-                raise JsrteError(f"truncated: the header declares {points} points, the file has {lines} lines",
-                                 path)
-        elif data == "binary":
-            need = points * sum(s * c for s, c in zip(sizes, counts, strict=True))
-            actual = path.stat().st_size - header_bytes
-            if actual < need:
-                raise JsrteError(f"truncated: the header declares {points} points ({need} bytes), the file has "
-                                 f"{actual}", path)
+            rows = _pcd_text_rows(f, values)
+            if rows < points:
+                raise JsrteError(f"truncated: the header declares {points} points of {values} values, the file "
+                                 f"has {rows} lines with {values} values", path)
+            return
+        actual = path.stat().st_size - header_bytes
+        if data == "binary":
+            if actual < points * point_bytes:
+                raise JsrteError(f"truncated: the header declares {points} points ({points * point_bytes} bytes), "
+                                 f"the file has {actual}", path)
+            return
+        _check_pcd_compressed(f.read(8), actual - 8, points * point_bytes, path)
+
+
+def _pcd_text_rows(f: BinaryIO, values: int) -> int:
+    """Lines of ASCII PCD data that Open3D reads as points: lines (of at most 1023 bytes, up to a
+    zero byte) holding at least ``values`` words; it skips the others."""
+    rows = 0
+    while line := f.readline(PCD_LINE_BYTES):
+        rows += len(_PCD_WORD.findall(line.split(b"\0", 1)[0])) >= values
+    return rows
+
+
+def _check_pcd_compressed(sizes: bytes, actual: int, need: int, path: Path) -> None:
+    """JsrteError unless the 8 bytes ``sizes`` opening binary_compressed data (compressed and
+    uncompressed bytes, little-endian uint32) fit ``actual`` bytes of compressed data and hold the
+    ``need`` bytes the header declares."""
+    if len(sizes) < 8:
+        raise JsrteError("truncated: binary_compressed data without its sizes", path)
+    compressed, uncompressed = struct.unpack("<II", sizes)
+    if compressed > actual:
+        raise JsrteError(f"truncated: the compressed data is {compressed} bytes, the file has {actual}", path)
+    if uncompressed < need or uncompressed > LZF_MAX_RATIO * compressed:
+        raise JsrteError(f"malformed PCD data ({compressed} compressed bytes cannot hold the {need} bytes the "
+                         f"header declares, or the {uncompressed} bytes they claim)", path)

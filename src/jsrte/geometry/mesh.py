@@ -106,20 +106,3 @@ def normalized(mesh: trimesh.Trimesh, norm: Normalization | None = None) -> trim
 def save_mesh(mesh: trimesh.Trimesh, path: str | Path) -> None:
     """Write ``mesh`` atomically; the format follows the suffix."""
     write_with(path, lambda tmp: mesh.export(tmp))
-
-
-def save_points_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None,
-                    colors: np.ndarray | None = None) -> None:
-    """Write a point cloud (n, 3) with optional normals (n, 3) and uint8 colours (n, 3) as binary PLY."""
-    def write(tmp: Path) -> None:
-        import open3d as o3d
-
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
-        if normals is not None:
-            cloud.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
-        if colors is not None:
-            cloud.colors = o3d.utility.Vector3dVector(np.asarray(colors, np.float64) / 255.0)
-        if not o3d.io.write_point_cloud(str(tmp), cloud, write_ascii=False):
-            raise JsrteError("could not write point cloud", path)
-
-    write_with(path, write)

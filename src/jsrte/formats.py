@@ -60,7 +60,7 @@ def input_kind(path: str | Path, *, accept: tuple[InputKind, ...] = ("scan", "me
 
 def ply_face_count(path: Path) -> int:
     """Number of faces a PLY header declares (0 for a point cloud)."""
-    return sum(count for name, count, _, _ in ply_header(path)[1] if name == "face")
+    return sum(count for name, count, *_ in ply_header(path)[1] if name == "face")
 
 
 PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
@@ -69,11 +69,15 @@ PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort":
 MAX_HEADER_LINES = 500
 
 
-def ply_header(path: Path) -> tuple[str, list[tuple[str, int, int | None, list[str]]], int]:
-    """(format, elements, header bytes) of a PLY file; each element is (name, count, bytes per
-    item or None when it has a list property, property names). JsrteError naming the file if
-    malformed, or if its vertices lack x, y or z or have only some of nx, ny, nz."""
-    elements: list[tuple[str, int, int | None, list[str]]] = []
+PlyElement = tuple[str, int, int | None, list[str], list[str | None]]
+"""An element of a PLY header: name, count, bytes per item (None when it has a list property),
+property names, and their scalar types (None for a list property)."""
+
+
+def ply_header(path: Path) -> tuple[str, list[PlyElement], int]:
+    """(format, elements, header bytes) of a PLY file (:data:`PlyElement`). JsrteError naming the
+    file if malformed, or if its vertices lack x, y or z or have only some of nx, ny, nz."""
+    elements: list[PlyElement] = []
     fmt = None
     with path.open("rb") as f:
         if f.readline().strip() != b"ply":
@@ -93,14 +97,15 @@ def ply_header(path: Path) -> tuple[str, list[tuple[str, int, int | None, list[s
             if words[0] == "format" and len(words) >= 2:
                 fmt = words[1]
             elif words[0] == "element" and len(words) == 3:
-                elements.append((words[1], _element_count(words[2], path), 0, []))
+                elements.append((words[1], _element_count(words[2], path), 0, [], []))
             elif words[0] == "property" and elements and len(words) >= 3:
-                name, count, size, names = elements[-1]
-                item = PLY_SIZES.get(words[1]) if len(words) == 3 else None
-                if len(words) == 3 and item is None:
+                name, count, size, names, types = elements[-1]
+                scalar = words[1] if len(words) == 3 else None
+                item = PLY_SIZES.get(scalar) if scalar else None
+                if scalar and item is None:
                     raise JsrteError(f"malformed PLY header (unknown property type {words[1]!r})", path)
                 elements[-1] = (name, count, None if size is None or item is None else size + item,
-                                names + [words[-1]])
+                                names + [words[-1]], types + [scalar])
             else:
                 raise JsrteError(f"malformed PLY header (line {' '.join(words)[:40]!r})", path)
     raise JsrteError("malformed PLY header (no end_header)", path)
@@ -138,7 +143,7 @@ def check_ply_complete(path: Path) -> None:
     """
     fmt, elements, header_bytes = ply_header(path)
     counted, items, size = [], 0, 0
-    for name, count, item_bytes, _ in elements:
+    for name, count, item_bytes, *_ in elements:
         if item_bytes is None:
             break
         counted.append(f"{count} {name}")

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from jsrte.errors import JsrteError
-from jsrte.formats import MAX_HEADER_LINES
+from jsrte.formats import ply_header
 
 PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
@@ -54,23 +54,12 @@ def read_ply_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None] | None:
 
 
 def _header(path: Path) -> tuple[str, list[Element], int]:
-    """(format, elements, header bytes) of a PLY file (checked before by
-    :func:`jsrte.formats.ply_header`)."""
-    fmt, elements = "", []
-    with path.open("rb") as f:
-        f.readline()
-        for _ in range(MAX_HEADER_LINES):
-            words = f.readline().decode("ascii", errors="replace").split()
-            if words == ["end_header"]:
-                return fmt, elements, f.tell()
-            if words[:1] == ["format"] and len(words) >= 2:
-                fmt = words[1]
-            elif words[:1] == ["element"] and len(words) == 3:
-                elements.append((words[1], int(words[2]), []))
-            elif words[:1] == ["property"] and elements and len(words) >= 3:
-                kind = PLY_TYPES.get(words[1]) if len(words) == 3 else None
-                elements[-1][2].append((words[-1], kind))
-    raise JsrteError("malformed PLY header (no end_header)", path)
+    """(format, elements, header bytes) of a PLY file (:func:`jsrte.formats.ply_header`), each
+    property with its NumPy type."""
+    fmt, elements, header_bytes = ply_header(path)
+    typed = [(name, count, [(p, PLY_TYPES[t] if t else None) for p, t in zip(names, types, strict=True)])
+             for name, count, _, names, types in elements]
+    return fmt, typed, header_bytes
 
 
 def _ascii_vertices(path: Path, header_bytes: int, elements: list[Element], at: int) -> list[np.ndarray]:

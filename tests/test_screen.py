@@ -351,3 +351,27 @@ def test_the_contended_classes_are_fitted_again_to_their_wholes(monkeypatch):
     scores, refits = class_scores({m: cands for m in own}, screened, queries, dict.fromkeys(own),
                                   replace(settings, class_refit_margin=0.004), 0)
     assert scores == {"a": 0.030, "b": 0.035, "c": 0.080} and not refits and not asked
+
+
+@pytest.mark.slow
+def test_a_bed_cut_in_parts_is_classed_a_bed_on_its_whole(tmp_path):
+    """Held-out bed 100, cut in two by the bed's and the table's proportions: the table model
+    explains the larger part better than the bed model's quick fit explains the whole, but not
+    the whole; judged on the whole, with the contended wholes fitted again, it is a bed."""
+    from jsrte.fit import load_models
+    from jsrte.fit.query import class_shape
+
+    scan = scan_mesh(held_out("bed", 100), rng=np.random.default_rng(100))
+    ply = write_scan(scan, tmp_path / "bed.ply")
+    models = load_models("auto", None)
+
+    def segment(model):
+        return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model))
+
+    choice = choose_in_scan(ply, models, segment=segment)
+    own_best = {name: min(s.score for s in choice.screened if s.model == name) for name in models}
+    assert min(own_best, key=own_best.__getitem__) == "table"  # each class on its own best candidate
+    record = choice.class_json()
+    assert record["chosen"] == "bed" and "bed" in record["refitted"] and record["margin"] > 0
+    seg = choice.query.info["segmentation"]
+    assert "parts" in seg["candidates"][seg["chosen"]]  # the whole bed, not a part

@@ -5,7 +5,9 @@ box, or the remnant of a wall, can look more like a chair than a half-hidden cha
 the best few candidates by that rank are each fitted quickly (:data:`SCREEN_FIT`: the
 Levenberg–Marquardt solver, few yaw starts, few iterations, few samples), and the candidate the
 model explains best is the object. With several models (``--model auto`` or a list), every
-model screens its own best candidates and the class whose best candidate scores lowest wins.
+model screens its own best candidates, each screen is scored on the whole cluster its candidate
+was split from, the contended classes fit their wholes again, and the lowest class score wins
+(:func:`class_scores`).
 
 The **screen score** is scale-free and the same for every model, so that it compares
 candidates of different sizes and classes of different models:
@@ -219,9 +221,10 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
                    settings: ScreenSettings = ScreenSettings(), seed: int = 0,
                    final_rng: np.random.Generator | None = None) -> Choice:
     """Screen the best candidates of a scan for each of ``models`` (name -> model) and keep the
-    lowest screen score: the class is the model with the lowest score over every candidate it
-    screened, the object that model's best candidate once each split is judged
-    (:func:`split_or_whole`: a whole or its parts).
+    lowest screen score: the class is the model with the lowest class score (one model: its
+    lowest screen score; several: :func:`class_scores`, judged on whole clusters), the object
+    that model's best candidate once each split is judged (:func:`split_or_whole`: a whole or
+    its parts; a whole's refit stands in for its quick fit where it scores lower).
 
     ``segment(model)`` segments the scan with that model's class shape and returns its
     ``ScanCandidates`` (``jsrte.fit.query.scan_candidates``). A single model with a single

@@ -360,13 +360,15 @@ def test_a_bed_cut_in_parts_is_classed_a_bed_on_its_whole(tmp_path):
     the whole; judged on the whole, with the contended wholes fitted again, it is a bed."""
     from jsrte.fit import load_models
     from jsrte.fit.query import class_shape
+    from jsrte.options import FitOptions
 
     scan = scan_mesh(held_out("bed", 100), rng=np.random.default_rng(100))
     ply = write_scan(scan, tmp_path / "bed.ply")
     models = load_models("auto", None)
+    scan_sdf = FitOptions(preset="fast").settings().scan_sdf  # as `jsrte fit`: line-of-sight free space
 
     def segment(model):
-        return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model))
+        return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model), settings=scan_sdf)
 
     choice = choose_in_scan(ply, models, segment=segment)
     own_best = {name: min(s.score for s in choice.screened if s.model == name) for name in models}

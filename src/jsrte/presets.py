@@ -69,8 +69,10 @@ LatentSpace = Literal["raw", "whitened"]
 InitScale = Literal["sphere", "height"]
 Selection = Literal["fscore", "loss"]
 Solver = Literal["adam", "gauss-newton"]
+AdamStage = Literal["never", "near-tie", "always"]
 MODES: dict[str, tuple[str, ...]] = {"latent_space": get_args(LatentSpace), "init_scale": get_args(InitScale),
-                                     "selection": get_args(Selection), "solver": get_args(Solver)}
+                                     "selection": get_args(Selection), "solver": get_args(Solver),
+                                     "adam_stage": get_args(AdamStage)}
 """The mode fields of :class:`FitSettings` and their values."""
 
 
@@ -198,6 +200,22 @@ class FitSettings:
     """Adam learning rate of the polish, every free parameter."""
     polish_samples: int = 1500
     """Samples of each polish iteration."""
+    adam_stage: AdamStage = "never"
+    """Gauss–Newton: after the Levenberg–Marquardt solve, every survivor takes ``adam_stage_iterations``
+    Adam steps on fresh samples at the Adam fit's learning rates (fit.polish.adam_stage) before
+    the polish and the comparison: "always", only when the best hypothesis at another pose ends
+    within ``adam_stage_margin`` of the best one's objective ("near-tie"), or "never". The solve
+    goes straight to the nearest minimum of the code; these steps let each survivor leave it."""
+    adam_stage_margin: float = 0.1
+    """The relative gap between two poses' objectives under which "near-tie" runs the stage."""
+    adam_stage_iterations: int = 100
+    """Adam steps of that stage."""
+    adam_stage_lr: float = 0.05
+    """Its learning rate for the first ``adam_stage_decay_after`` steps; divided by
+    ``lr_decay_factor`` after."""
+    adam_stage_decay_after: int = 40
+    adam_stage_samples: int = 1500
+    """Samples of each of its steps."""
 
     def __post_init__(self) -> None:
         """Every mode field holds one of its values (a typo is an error here, not a silent default)."""

@@ -48,7 +48,7 @@ from jsrte.timing import stage
 SCREEN_FIT = replace(FAST_GAUSS_NEWTON.fit, iterations=6, samples_per_iteration=1000, yaw_screen_keep=4,
                      yaw_screen_samples=400, prune_after=3, prune_keep=1, eval_samples=2000,
                      extract_resolution=24, translation_search=0.0, samples_after_pruning=None,
-                     polish_iterations=0, polish_samples=1000, code_screen_samples=None,
+                     adam_stage="never", polish_iterations=0, polish_samples=1000, code_screen_samples=None,
                      code_starts_prune_after=None)
 """The quick fit of a candidate: 12 yaw starts screened by forward passes to the best 4, which
 take 3 Levenberg–Marquardt iterations on 1000 samples, the best one goes on to at most 6."""

@@ -335,3 +335,30 @@ def test_cli_fit_at_records_the_choice(tmp_path, monkeypatch, capsys, room):
     assert len(record["candidates"]) >= 2 and sum(c["chosen"] for c in record["candidates"]) == 1
     code, _, err = run_cli(monkeypatch, capsys, *args, "--out", tmp_path / "bad", "--at", "1,2")
     assert code == 2 and "--at" in err and not (tmp_path / "bad").exists()
+
+
+def test_a_neck_refused_for_want_of_class_evidence_is_kept_for_the_screen():
+    """A chair 3 cm from a box, with proportions that favour the two together (the whole matches
+    better than either part): no split, but the candidate keeps its weak neck, cut at the gap;
+    a box alone has none."""
+    from jsrte.metrics.surface import bounding_sphere
+
+    chair = stand_in_chair()
+    side_box = box((0.4, 0.35, 0.5))
+    side_box.apply_translation([chair.bounds[1][0] + 0.23, 0.0, 0.0])
+    chair_points = _surface_points(chair, 4000, 0)
+    points = np.concatenate([chair_points, _surface_points(side_box, 2000, 1)])
+    up = np.array([0.0, 1.0, 0.0])
+    top = float(np.percentile(points[:, 1], 98))
+    pair_like = ClassShape("pair", aspect=top / bounding_sphere(points)[1])  # the pair's own proportions
+    result = segment_objects(points, points[:, 1], up, rng=np.random.default_rng(0), shape=pair_like)
+    valid = [c for c in result.candidates if not c.rejected]
+    assert len(valid) == 1 and not valid[0].parts and len(valid[0].index) > 0.8 * len(points)
+    neck = valid[0].neck
+    assert len(neck) == 2 and sum(len(p.index) for p in neck) == len(valid[0].index)
+    is_chair = sorted(float((p.index < len(chair_points)).mean()) for p in neck)
+    assert is_chair[0] < 0.2 and is_chair[1] > 0.95  # cut at the gap
+    assert all("rank" in p.summary for p in neck)
+    crate = _surface_points(box((0.5, 0.6, 0.4)), 4000, 2)
+    alone = segment_objects(crate, crate[:, 1], up, rng=np.random.default_rng(0), shape=pair_like)
+    assert not any(c.neck or c.parts for c in alone.candidates)  # one box: nothing to cut

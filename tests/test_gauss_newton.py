@@ -420,3 +420,59 @@ def test_the_survivors_are_solved_on_a_fresh_larger_sample_set(widening, widened
     assert result.transform.s == pytest.approx(truth.s, rel=0.02)
     assert rotation_angle_deg(result.transform.R, truth.R) < 2.0
     assert np.linalg.norm(result.transform.t - truth.t) < 0.03
+
+
+def test_near_tie_compares_the_best_hypothesis_with_the_best_at_another_pose():
+    """Objectives 1.00 (yaw 0), 1.01 (yaw 10°, the same pose) and 1.04 (yaw 90°): a tie within 5%
+    but not within 3%; without the 90° hypothesis no tie at all, however close the same pose is."""
+    from jsrte.fit.polish import near_tie
+
+    starts = [Init(1.0, 0.0, 0.0, np.deg2rad(yaw), np.zeros(3)) for yaw in (0.0, 10.0, 90.0)]
+    batch = HypothesisBatch(starts, 3, latent_init_std=0.0)
+    objective = torch.tensor([1.0, 1.01, 1.04], dtype=torch.float64)
+    assert near_tie(batch, objective, 0.05) and not near_tie(batch, objective, 0.03)
+    batch.keep(torch.tensor([0, 1]))
+    assert not near_tie(batch, objective[:2], 0.05)
+    shifted = HypothesisBatch([starts[0], Init(1.0, 0.0, 0.0, 0.0, np.array([0.3, 0.0, 0.0]))], 3,
+                              latent_init_std=0.0)
+    assert near_tie(shifted, torch.tensor([1.0, 1.04], dtype=torch.float64), 0.05)  # moved by 0.3 s
+
+
+def test_the_adam_stage_runs_on_a_near_tie_or_always_and_carries_both_poses_on(widening, widened_mesh):
+    """Two starts, the true yaw 0.15 rad and 4 cm off and the yaw a quarter turn away, after one
+    Levenberg–Marquardt iteration: with a margin that every pair meets, both take the Adam stage
+    (its evaluations counted: 60 steps, 2 hypotheses, 1000 samples) and the right one ends nearer
+    the truth than the solve alone leaves it; with a margin no pair meets, no stage, unless it is
+    asked for always."""
+    truth, up = tilted_truth(theta=0.7)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(7))
+    psi, rho = spherical_from_axis(up)
+    base = rotation_between([0, 1, 0], up)
+    starts = [Init(truth.s, psi, rho, 0.7 + 0.15, truth.t + np.array([0.04, 0.0, 0.0]), latent=np.zeros(3),
+                   base_rotation=base),
+              Init(truth.s, psi, rho, 0.7 + np.pi / 2, truth.t, latent=np.zeros(3), base_rotation=base)]
+    settings = replace(SETTINGS, prune_after=None, iterations=1, tolerance=0.0, adam_stage="near-tie",
+                       adam_stage_iterations=60, adam_stage_decay_after=30, adam_stage_lr=0.02,
+                       adam_stage_samples=1000)
+
+    def run(margin: float):
+        return solve(widening.decoder, query, starts, replace(settings, adam_stage_margin=margin),
+                     fixed=frozenset({"psi", "rho"}), generator=torch.Generator().manual_seed(0))
+
+    def error(out) -> tuple[float, float]:
+        right = int(np.flatnonzero(out.survivors == 0)[0])
+        transform = out.batch.transform(right)
+        return rotation_angle_deg(transform.R, truth.R), float(np.linalg.norm(transform.t - truth.t))
+
+    tied, alone = run(100.0), run(1e-12)
+    assert tied.evaluation_parts["adam stage"] == 60 * 2 * 1000
+    assert "adam stage" not in alone.evaluation_parts
+    always = solve(widening.decoder, query, starts, replace(settings, adam_stage="always", adam_stage_margin=1e-12),
+                   fixed=frozenset({"psi", "rho"}), generator=torch.Generator().manual_seed(0))
+    assert always.evaluation_parts["adam stage"] == 60 * 2 * 1000
+    assert sum(tied.evaluation_parts.values()) == tied.evaluations
+    assert sorted(tied.survivors.tolist()) == [0, 1]  # both poses carried on to the comparison
+    (rot_tied, t_tied), (rot_alone, t_alone) = error(tied), error(alone)
+    assert rot_tied < 0.5 * rot_alone and t_tied < t_alone
+    assert rot_tied < 2.0
+    assert int(tied.survivors[int(np.argmin(tied.losses))]) == 0  # the right pose wins

@@ -69,8 +69,10 @@ LatentSpace = Literal["raw", "whitened"]
 InitScale = Literal["sphere", "height"]
 Selection = Literal["fscore", "loss"]
 Solver = Literal["adam", "gauss-newton"]
+AdamStage = Literal["never", "near-tie", "always"]
 MODES: dict[str, tuple[str, ...]] = {"latent_space": get_args(LatentSpace), "init_scale": get_args(InitScale),
-                                     "selection": get_args(Selection), "solver": get_args(Solver)}
+                                     "selection": get_args(Selection), "solver": get_args(Solver),
+                                     "adam_stage": get_args(AdamStage)}
 """The mode fields of :class:`FitSettings` and their values."""
 
 
@@ -198,6 +200,22 @@ class FitSettings:
     """Adam learning rate of the polish, every free parameter."""
     polish_samples: int = 1500
     """Samples of each polish iteration."""
+    adam_stage: AdamStage = "never"
+    """Gauss–Newton: after the Levenberg–Marquardt solve, every survivor takes ``adam_stage_iterations``
+    Adam steps on fresh samples at the Adam fit's learning rates (fit.polish.adam_stage) before
+    the polish and the comparison: "always", only when the best hypothesis at another pose ends
+    within ``adam_stage_margin`` of the best one's objective ("near-tie"), or "never". The solve
+    goes straight to the nearest minimum of the code; these steps let each survivor leave it."""
+    adam_stage_margin: float = 0.1
+    """The relative gap between two poses' objectives under which "near-tie" runs the stage."""
+    adam_stage_iterations: int = 100
+    """Adam steps of that stage."""
+    adam_stage_lr: float = 0.05
+    """Its learning rate for the first ``adam_stage_decay_after`` steps; divided by
+    ``lr_decay_factor`` after."""
+    adam_stage_decay_after: int = 40
+    adam_stage_samples: int = 1500
+    """Samples of each of its steps."""
 
     def __post_init__(self) -> None:
         """Every mode field holds one of its values (a typo is an error here, not a silent default)."""
@@ -246,7 +264,8 @@ FAST_GAUSS_NEWTON = Preset(
     fit=replace(FAST.fit, solver="gauss-newton", iterations=15, samples_per_iteration=1000,
                 samples_after_pruning=3000, prune_after=4, prune_keep=2, prune_again_after=None,
                 translation_search=0.3, yaw_screen_samples=200, code_starts=2, code_screen_samples=50,
-                code_starts_prune_after=1, polish_iterations=20, polish_samples=500, eval_samples=4000),
+                code_starts_prune_after=1, adam_stage="always", polish_iterations=20, polish_samples=500,
+                eval_samples=4000),
 )
 """``fast``'s objective, starts and selection, minimized by Levenberg–Marquardt (fit.gauss_newton):
 the 12 yaw starts take 4 iterations on 1000 samples drawn once; the best two move to the
@@ -254,9 +273,10 @@ translation of lowest objective on a grid across the up axis (±0.3 s0, step 0.1
 200 samples: a partial scan's visible part can put the start a quarter metre off), are each
 also restarted from the two training codes that fit best there (all training codes scored on
 50 samples), and go on on 3000 fresh samples, only the best of each start's three copies after
-one iteration, to at most 15 iterations in all (stopping once a step gains under 0.1%); 20 Adam
-steps on 500 fresh samples each end it, and the winner is the lowest loss on 4000 samples:
-about 0.21 M decoder evaluations in the solve (docs/solver.md)."""
+one iteration, to at most 15 iterations in all (stopping once a step gains under 0.1%); then both
+take ``fast``'s last stage, 100 Adam steps on 1500 fresh samples each (40 at lr 0.05, 60 at 0.01),
+and 20 more on 500 at lr 0.005, and the winner is the lowest loss on 4000 samples: about 0.51 M
+decoder evaluations in the solve (docs/solver.md)."""
 
 SMOKE = Preset(
     name="smoke",

@@ -29,6 +29,11 @@ lowest objective on a grid across its up axis (``translation_search``; the dampe
 cross a start a quarter metre off, the code bends to reach the points instead), and restart
 from the training codes that fit best there (``code_starts``); the survivors can then go on
 on a fresh, larger sample set (``samples_after_pruning``).
+
+After the solve, every survivor can take a longer Adam stage (``adam_stage``,
+fit.polish.adam_stage) before the comparison, always or when two poses end within a few
+percent of each other: the solve goes straight to the nearest minimum of the code, and which
+of two near-equal poses wins then depends on which code got stuck.
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ from jsrte.fit.optimize import (
     pruning_stages,
 )
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
-from jsrte.fit.polish import polish
+from jsrte.fit.polish import adam_stage, adam_stage_due, polish
 from jsrte.geometry.sim3 import rotation_from_paper
 from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.presets import FitSettings
@@ -376,8 +381,11 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     p, base, lin, damping, moving, survivors = _drop_failed(p, base, lin, damping, moving, survivors, failed,
                                                             batch)
     unpack_into(batch, p)
+    objective = lin.objective
     if len(set(survivors.tolist())) < len(survivors):
-        survivors = _best_copies(batch, survivors, lin.objective)
+        survivors, objective = _best_copies(batch, survivors, objective)
+    if adam_stage_due(batch, objective, settings):
+        count("adam stage", adam_stage(decoder, batch, problem_of, settings))
     if settings.polish_iterations:
         count("polish", polish(decoder, batch, problem_of, settings))
     final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty,
@@ -485,9 +493,10 @@ def _best_copy_rows(survivors: np.ndarray, objective: torch.Tensor) -> list[int]
             for s in dict.fromkeys(survivors.tolist())]
 
 
-def _best_copies(batch: HypothesisBatch, survivors: np.ndarray, objective: torch.Tensor) -> np.ndarray:
+def _best_copies(batch: HypothesisBatch, survivors: np.ndarray,
+                 objective: torch.Tensor) -> tuple[np.ndarray, torch.Tensor]:
     """Keep, of the hypotheses that share a start (code restarts), the one with the lowest
-    ``objective`` (H,); returns the kept hypotheses' start indices."""
+    ``objective`` (H,); returns the kept hypotheses' start indices and objectives."""
     keep = _best_copy_rows(survivors, objective)
     batch.keep(torch.as_tensor(keep))
-    return survivors[keep]
+    return survivors[keep], objective[torch.as_tensor(keep, device=objective.device)]

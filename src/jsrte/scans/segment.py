@@ -13,7 +13,8 @@ Above the floor (found by :func:`jsrte.scans.preprocess.segment_floor`), in orde
    the class better than the whole (:func:`class_score`), and its parts are cut again. The
    whole stays a candidate beside its parts (its ``parts``; theirs, its ``parent``): one
    object cut at a narrow place (a bed's headboard) and two objects side by side look alike
-   to proportions, and a quick fit (``jsrte.fit.screen``) tells them apart.
+   to proportions, and a quick fit (``jsrte.fit.screen``) tells them apart. A cluster whose
+   neck is refused for want of class evidence keeps it (its ``neck``), for the screen.
 5. **Candidates**: clusters too small, flat, thin or big to be an object are dropped; the
    others are ranked by how well their proportions and height profile match the class
    (:class:`ClassShape`, from the model), or by their distance to a point given by the user.
@@ -141,6 +142,9 @@ class Candidate:
     parent : position (in the segmentation's candidates) of the whole it was split from, if any
     parts : positions of the candidates it was split into (empty: not split); the parts hold
         its points, so a candidate with parts overlaps them
+    neck : a cluster left whole: its two parts at a weak neck where the split was refused for
+        want of class evidence (empty: none); the screen may still cut it there
+        (``jsrte.fit.screen.cut_necks``)
     """
 
     index: np.ndarray
@@ -149,6 +153,7 @@ class Candidate:
     summary: dict[str, Any] = field(default_factory=dict)
     parent: int | None = None
     parts: list[int] = field(default_factory=list)
+    neck: list[Candidate] = field(default_factory=list)
 
 
 @dataclass
@@ -360,6 +365,7 @@ class _Node:
 
     index: np.ndarray
     parent: int | None
+    neck: list[np.ndarray] = field(default_factory=list)
 
 
 def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
@@ -369,12 +375,14 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, sh
     touching objects meet), each parent before its parts. A split is kept when one part matches
     the class better than the whole by ``split_margin`` and both parts could be objects (neither
     too flat nor too thin), or when the whole is too big to be an object (then the whole is
-    left out: it can only be parts); each part is split again, ``split_depth`` deep."""
+    left out: it can only be parts); each part is split again, ``split_depth`` deep. A weak neck
+    refused for want of class evidence is kept as the ``neck`` of a cluster left whole (not of a
+    part)."""
     cut = _cut(cluster, points, heights, shape, s, depth)
-    if cut is None:
-        nodes.append(_Node(cluster, parent))
+    if cut is None or not cut[2]:
+        nodes.append(_Node(cluster, parent, cut[0] if cut is not None and depth == 0 else []))
         return
-    parts, too_big = cut
+    parts, too_big, _ = cut
     if not too_big:
         nodes.append(_Node(cluster, parent))
         parent = len(nodes) - 1
@@ -383,9 +391,11 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, sh
 
 
 def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-         s: SegmentSettings, depth: int) -> tuple[list[np.ndarray], bool] | None:
-    """The two parts of ``cluster`` if the split is kept (:func:`_split_tree`), and whether
-    the whole is too big to be an object; None when it is not split."""
+         s: SegmentSettings, depth: int) -> tuple[list[np.ndarray], bool, bool] | None:
+    """The two parts of ``cluster`` at its weakest neck, whether the whole is too big to be an
+    object and whether the split is kept (:func:`_split_tree`; not kept: no part matches the
+    class better by ``split_margin``); None when it has no neck both of whose parts could be
+    objects."""
     if len(cluster) < 2 * s.shred_points or depth >= s.split_depth:
         return None
     whole = class_score(points[cluster], heights[cluster], shape)
@@ -399,9 +409,7 @@ def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: Cl
     if not too_big and not all(_object_sized(points[p], heights[p], s) for p in parts):
         return None  # a table's top cut from its legs: a part no object could be
     best = min((class_score(points[p], heights[p], shape) or 0.0) for p in parts)
-    if not (too_big or (whole is not None and best < whole - s.split_margin)):
-        return None
-    return parts, too_big
+    return parts, too_big, too_big or (whole is not None and best < whole - s.split_margin)
 
 
 def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
@@ -412,6 +420,8 @@ def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarr
     order = sorted(range(len(nodes)), key=lambda k: -len(nodes[k].index))
     position = {k: p for p, k in enumerate(order)}
     candidates = [_candidate(nodes[k].index, points, heights, up, shape, s) for k in order]
+    for k in order:
+        candidates[position[k]].neck = [_candidate(part, points, heights, up, shape, s) for part in nodes[k].neck]
     for k in order:
         if parent[k] is not None:
             candidates[position[k]].parent = position[parent[k]]
@@ -649,9 +659,14 @@ def _choose(candidates: list[Candidate], points: np.ndarray, at: np.ndarray | No
     wholes = [k for k, c in enumerate(candidates) if not c.rejected and c.parts]
     if all(candidates[k].score is not None for k in valid + wholes):
         most = max(len(candidates[k].index) for k in valid)
-        rank = {k: candidates[k].score + size_weight * float(np.log(most / len(candidates[k].index)))
-                for k in valid + wholes}
+        def rank_of(c: Candidate) -> float:
+            return c.score + size_weight * float(np.log(most / len(c.index)))
+
+        rank = {k: rank_of(candidates[k]) for k in valid + wholes}
         for k in valid + wholes:
             candidates[k].summary["rank"] = round(rank[k], 4)
+            for part in candidates[k].neck:
+                if part.score is not None:
+                    part.summary["rank"] = round(rank_of(part), 4)
         return min(valid, key=rank.__getitem__), "class"
     return max(valid, key=lambda k: len(candidates[k].index)), "largest"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 from dataclasses import replace
 
@@ -251,6 +252,131 @@ def test_slabs_are_screened_after_every_other_candidate():
     assert screened_candidates(cands, 3, thin) == [2, 3, 0]
 
 
+# --- the class judged on whole objects ----------------------------------------------------------
+
+
+def _two_pieces(rng: np.random.Generator, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """700 points of a 1 m sphere at ``centre`` and 300 of a 0.5 m sphere 1.5 m beside it (+x)."""
+    ball = rng.normal(size=(700, 3))
+    blob = rng.normal(size=(300, 3))
+    return (centre + ball / np.linalg.norm(ball, axis=1, keepdims=True),
+            centre + [1.5, 0.0, 0.0] + 0.5 * blob / np.linalg.norm(blob, axis=1, keepdims=True))
+
+
+def _whole_and_parts(ball: np.ndarray, blob: np.ndarray) -> object:
+    """``ScanCandidates``-like: candidate 0 (both pieces) split into 1 (the ball) and 2 (the blob)."""
+    from types import SimpleNamespace
+
+    from jsrte.scans.segment import Candidate
+
+    n = len(ball) + len(blob)
+    candidates = [Candidate(np.arange(n), parts=[1, 2], summary={"rank": 0.0}),
+                  Candidate(np.arange(len(ball)), parent=0, summary={"rank": 0.0}),
+                  Candidate(np.arange(len(ball), n), parent=0, summary={"rank": 0.0})]
+    return SimpleNamespace(segmentation=SimpleNamespace(candidates=candidates))
+
+
+def test_a_class_that_explains_only_part_of_a_whole_pays_for_the_rest():
+    """One model fits the ball of a ball-and-blob cluster exactly; another fits the whole cluster
+    1% too large. On its part the first scores lower; judged on the whole, the second wins."""
+    import torch
+
+    from analytic import SphereDecoder
+    from jsrte.fit.query import SdfQuery
+    from jsrte.fit.screen import Screened, ScreenSettings, _points_key, class_scores, screen_score, screen_terms
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.model.checkpoint import DeepSdfModel
+    from jsrte.result import FitResult
+
+    class TwoBalls(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.config = SphereDecoder().config
+
+        def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+            far = (points - torch.tensor([0.75, 0.0, 0.0], dtype=points.dtype)).norm(dim=-1) - 0.25
+            return torch.minimum(points.norm(dim=-1) - 0.5, far)
+
+    rng = np.random.default_rng(0)
+    centre = np.array([2.0, 0.5, -1.0])
+    ball, blob = _two_pieces(rng, centre)
+    cands = _whole_and_parts(ball, blob)
+    pieces = {0: np.concatenate([ball, blob]), 1: ball, 2: blob}
+    queries = {_points_key(cands, k): SdfQuery(p, np.zeros(len(p)), p) for k, p in pieces.items()}
+    models = {"ball": DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "ball"}),
+              "pair": DeepSdfModel(TwoBalls(), torch.zeros(1, 2), {"name": "pair"})}
+    settings = ScreenSettings(class_refit_margin=0.0)
+
+    def screened(name: str, k: int, scale: float) -> Screened:
+        result = FitResult("jsrte", Sim3(scale, np.eye(3), centre), np.zeros(2, np.float32), None, 0.0, {})
+        parts = screen_terms(models[name], queries[_points_key(cands, k)], result, settings, rng) | {"rank": 0.0}
+        return Screened(name, k, queries[_points_key(cands, k)], result, screen_score(parts, settings), parts)
+
+    on_part, on_whole = screened("ball", 1, 2.0), screened("pair", 0, 2.02)
+    assert on_part.score < 1e-6 < on_whole.score < 0.01  # by its own candidate the ball model wins
+    scores, refits = class_scores({"ball": cands, "pair": cands}, [on_part, on_whole], queries, models, settings, 0)
+    assert scores["pair"] == pytest.approx(on_whole.score) and not refits
+    assert scores["ball"] > 0.02  # the blob's 30% of the points, each capped at 0.1 radii
+    assert min(scores, key=scores.__getitem__) == "pair"
+
+
+def test_the_contended_classes_are_fitted_again_to_their_wholes(monkeypatch):
+    """Classes within ``class_refit_margin`` of the best are refitted on their whole (its query)
+    and keep the lower score; the others are not."""
+    from types import SimpleNamespace
+
+    from jsrte.fit.screen import Screened, ScreenSettings, class_scores
+
+    screen_module = importlib.import_module("jsrte.fit.screen")
+    cands = _whole_and_parts(np.zeros((70, 3)), np.zeros((30, 3)))
+    keys = {k: screen_module._points_key(cands, k) for k in range(3)}
+    queries = {key: SimpleNamespace(name=k) for k, key in keys.items()}
+    own = {"a": (0, 0.030), "b": (0, 0.035), "c": (0, 0.080)}  # each class screened on the whole
+    screened = [Screened(m, k, queries[keys[k]], None, score, {"residual": score, "freespace": 0.0, "rank": 0.0})
+                for m, (k, score) in own.items()]
+    asked = []
+
+    def refit(model, name, query, candidate, settings, seed, rank=0.0):
+        asked.append((name, query.name, candidate, settings.fit.iterations))
+        score = {"a": 0.033, "b": 0.020}[name]
+        return Screened(name, candidate, query, None, score, {"residual": score, "freespace": 0.0, "rank": rank})
+
+    monkeypatch.setattr(screen_module, "screen", refit)
+    settings = ScreenSettings(class_refit_margin=0.01)
+    scores, refits = class_scores({m: cands for m in own}, screened, queries, dict.fromkeys(own), settings, 0)
+    assert asked == [("a", 0, 0, settings.class_fit.iterations), ("b", 0, 0, settings.class_fit.iterations)]
+    assert scores == {"a": 0.030, "b": 0.020, "c": 0.080} and [r.model for r in refits] == ["a", "b"]
+    assert settings.class_fit.iterations > settings.fit.iterations
+    asked.clear()  # no other class within the margin: nothing is contended, nothing refitted
+    scores, refits = class_scores({m: cands for m in own}, screened, queries, dict.fromkeys(own),
+                                  replace(settings, class_refit_margin=0.004), 0)
+    assert scores == {"a": 0.030, "b": 0.035, "c": 0.080} and not refits and not asked
+
+
+@pytest.mark.slow
+def test_a_bed_cut_in_parts_is_classed_a_bed_on_its_whole(tmp_path):
+    """Held-out bed 100, cut in two by the bed's and the table's proportions: the table model
+    explains the larger part better than the bed model's quick fit explains the whole, but not
+    the whole; judged on the whole, with the contended wholes fitted again, it is a bed."""
+    from jsrte.fit import load_models
+    from jsrte.fit.query import class_shape
+    from jsrte.options import FitOptions
+
+    scan = scan_mesh(held_out("bed", 100), rng=np.random.default_rng(100))
+    ply = write_scan(scan, tmp_path / "bed.ply")
+    models = load_models("auto", None)
+    scan_sdf = FitOptions(preset="fast").settings().scan_sdf  # as `jsrte fit`: line-of-sight free space
+
+    def segment(model):
+        return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model), settings=scan_sdf)
+
+    choice = choose_in_scan(ply, models, segment=segment)
+    own_best = {name: min(s.score for s in choice.screened if s.model == name) for name in models}
+    assert min(own_best, key=own_best.__getitem__) == "table"  # each class on its own best candidate
+    record = choice.class_json()
+    assert record["chosen"] == "bed" and "bed" in record["refitted"] and record["margin"] > 0
+    seg = choice.query.info["segmentation"]
+    assert "parts" in seg["candidates"][seg["chosen"]]  # the whole bed, not a part
 def test_a_candidate_explained_badly_is_cut_at_its_neck():
     """Only a screened candidate scoring worse than the threshold, with a neck, is cut: its parts
     are appended as its ``parts`` (their ``parent`` it) and returned, to be screened."""

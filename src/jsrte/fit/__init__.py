@@ -24,8 +24,9 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
         (``jsrte prepare``), or an ``SdfQuery`` (formats: ``jsrte.formats``)
     model : a shipped model's name, a model file, or a loaded model; or several (a list, or
         names separated by commas), or "auto" (every shipped model): each is fitted quickly to
-        the scan's candidate objects and the class that explains its best candidate best is
-        kept (``jsrte.fit.screen``; fit.json's ``class`` records every class's score)
+        the scan's candidate objects, and the class whose fits explain the whole cluster of
+        its best candidate best is kept (``jsrte.fit.screen.class_scores``; fit.json's
+        ``class`` records every class's score)
     options : how to fit (:class:`jsrte.options.FitOptions`: preset, up, viewpoints,
         line_of_sight, free_axis, at, hypotheses, seed, device, units_check); default: the
         defaults of ``jsrte fit``. In a scan of several objects the object is the one nearest

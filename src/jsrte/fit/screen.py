@@ -5,7 +5,9 @@ box, or the remnant of a wall, can look more like a chair than a half-hidden cha
 the best few candidates by that rank are each fitted quickly (:data:`SCREEN_FIT`: the
 Levenberg–Marquardt solver, few yaw starts, few iterations, few samples), and the candidate the
 model explains best is the object. With several models (``--model auto`` or a list), every
-model screens its own best candidates and the class whose best candidate scores lowest wins.
+model screens its own best candidates, each screen is scored on the whole cluster its candidate
+was split from, the contended classes fit their wholes again, and the lowest class score wins
+(:func:`class_scores`).
 
 The **screen score** is scale-free and the same for every model, so that it compares
 candidates of different sizes and classes of different models:
@@ -56,6 +58,11 @@ SCREEN_FIT = replace(FAST_GAUSS_NEWTON.fit, iterations=6, samples_per_iteration=
 """The quick fit of a candidate: 12 yaw starts screened by forward passes to the best 4, which
 take 3 Levenberg–Marquardt iterations on 1000 samples, the best one goes on to at most 6."""
 
+CLASS_FIT = replace(SCREEN_FIT, iterations=15, prune_keep=2, translation_search=0.3, samples_after_pruning=3000)
+"""The fit of a whole whose class is in contention (:func:`class_scores`): as :data:`SCREEN_FIT`,
+but the best two yaw starts go on, moved to the translation of lowest objective across the up
+axis (±0.3 s0) and on 3000 fresh samples, to at most 15 iterations."""
+
 
 @dataclass(frozen=True)
 class ScreenSettings:
@@ -84,6 +91,13 @@ class ScreenSettings:
     whole_explains: float = 1.3
     """... and when its fitted surface lies at most this many times as far from its best
     part's points as the part's own fitted surface (:func:`explained_ratio`)."""
+    class_fit: FitSettings = field(default_factory=lambda: CLASS_FIT)
+    """The fit of a whole whose class is in contention (:func:`class_scores`)."""
+    class_refit_margin: float = 0.02
+    """Where two classes or more score on their wholes at most the best class's plus this, each
+    is fitted again to its whole with ``class_fit`` (0: never)."""
+    class_freespace_weight: float = 0.0
+    """Weight of the free-space share in the class score (:func:`class_scores`)."""
     neck_score: float = 0.065
     """With one model, a screened candidate scoring worse than this that segmentation left
     whole at a weak neck (its ``neck``) is cut there, and its parts are screened and judged
@@ -171,8 +185,14 @@ def screen(model: DeepSdfModel, name: str, query: SdfQuery, candidate: int | Non
     result = fit_query(model, query, settings.fit, seed=seed)
     parts = screen_terms(model, query, result, settings, np.random.default_rng(seed))
     parts["rank"] = float(rank)
-    score = parts["residual"] + settings.freespace_weight * parts["freespace"] + settings.rank_weight * rank
-    return Screened(name, candidate, query, result, score, parts)
+    return Screened(name, candidate, query, result, screen_score(parts, settings), parts)
+
+
+def screen_score(parts: dict[str, float], settings: ScreenSettings, freespace_weight: float | None = None) -> float:
+    """The screen score of ``parts`` (``residual``, ``freespace`` and ``rank``: :func:`screen`),
+    the free-space share weighted by ``freespace_weight`` (default: the settings')."""
+    weight = settings.freespace_weight if freespace_weight is None else freespace_weight
+    return parts["residual"] + weight * parts["freespace"] + settings.rank_weight * parts["rank"]
 
 
 @dataclass
@@ -184,13 +204,16 @@ class Choice:
     query : the chosen candidate's SDF query
     model : the chosen model
     screened : every screen run
-    classes : per model name, its best screen score (None when it had no candidate)
+    classes : per model name, its class score (None when it had no candidate): its best screen
+        score, with several models its best on a whole (:func:`class_scores`)
+    refits : the contended wholes fitted again (:func:`class_scores`)
     """
 
     query: SdfQuery
     model: DeepSdfModel
     screened: list[Screened]
     classes: dict[str, float | None]
+    refits: list[Screened] = field(default_factory=list)
 
     def class_json(self) -> dict[str, Any]:
         """fit.json's record of the class choice: every class's score and the margin."""
@@ -198,16 +221,18 @@ class Choice:
         margin = scores[1] - scores[0] if len(scores) > 1 else None
         return {"chosen": self.model.name, "chosen_by": "fit",
                 "scores": {k: None if v is None else round(v, 5) for k, v in self.classes.items()},
-                "margin": None if margin is None else round(margin, 5)}
+                "margin": None if margin is None else round(margin, 5),
+                "refitted": [r.model for r in self.refits]}
 
 
 def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: object,
                    settings: ScreenSettings = ScreenSettings(), seed: int = 0,
                    final_rng: np.random.Generator | None = None) -> Choice:
     """Screen the best candidates of a scan for each of ``models`` (name -> model) and keep the
-    lowest screen score: the class is the model with the lowest score over every candidate it
-    screened, the object that model's best candidate once each split is judged
-    (:func:`split_or_whole`: a whole or its parts).
+    lowest screen score: the class is the model with the lowest class score (one model: its
+    lowest screen score; several: :func:`class_scores`, judged on whole clusters), the object
+    that model's best candidate once each split is judged (:func:`split_or_whole`: a whole or
+    its parts; a whole's refit stands in for its quick fit where it scores lower).
 
     ``segment(model)`` segments the scan with that model's class shape and returns its
     ``ScanCandidates`` (``jsrte.fit.query.scan_candidates``). A single model with a single
@@ -240,9 +265,14 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
             run(name, cands, cut_necks(cands.segmentation.candidates, screened, settings.neck_score))
     if not screened:
         raise JsrteError("no candidate object to screen", path)
-    classes = {name: min((s.score for s in screened if s.model == name), default=None) for name in models}
+    refits: list[Screened] = []
+    if len(models) > 1:
+        with stage("screen"):
+            classes, refits = class_scores(per_model, screened, queries, models, settings, seed)
+    else:
+        classes = {name: min((s.score for s in screened if s.model == name), default=None) for name in models}
     winner = min((name for name in models if classes[name] is not None), key=classes.__getitem__)
-    own = [s for s in screened if s.model == winner]
+    own = _with_refits([s for s in screened if s.model == winner], [r for r in refits if r.model == winner])
     covered = _covered(per_model[winner], own, models[winner], settings, seed)
     scores = {s.candidate: s.score for s in own}
     thin = slabs(per_model[winner], settings.slab_m)
@@ -260,7 +290,66 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
     if len(models) == 1 and best.candidate == by_class and final_rng is not None:
         query = chosen.query(best.candidate, rng=final_rng)  # the same samples as without a screen
     query.info["segmentation"] = seg.to_json()
-    return Choice(query, models[best.model], screened, classes)
+    return Choice(query, models[best.model], screened, classes, refits)
+
+
+def class_scores(per_model: dict[str, object], screened: list[Screened], queries: dict[str, SdfQuery],
+                 models: dict[str, DeepSdfModel], settings: ScreenSettings,
+                 seed: int) -> tuple[dict[str, float | None], list[Screened]]:
+    """Each class's score, judged on whole objects, and the refits of the contended wholes.
+
+    Every screen of a model (``screened``; ``per_model``: name -> ``ScanCandidates``;
+    ``queries``: the screened candidates' queries by :func:`_points_key`) is scored on the
+    whole of its candidate's split family (its top-most ``parent``; itself when not split):
+    its fitted surface at the whole's points and its violation of the whole's free space
+    (:func:`screen_terms`; weighted by ``class_freespace_weight``), plus its own rank term. A
+    table fitted to the mattress of a bed pays for the headboard (those points' distances are
+    capped, not dropped), and every class is judged on the whole cluster, not on the part it
+    explains best. A class's score is its
+    best screen's. Where another class is within ``class_refit_margin`` of the best, every
+    class within it (the best included) is fitted again to its whole with ``class_fit`` (a
+    six-iteration quick fit of a whole bed may stop in a poor minimum) and keeps the lower of
+    the two scores.
+
+    Returns per model name its class score (None without a candidate) and the refits."""
+    scores: dict[str, float] = {}
+    roots: dict[str, int] = {}
+    for name, cands in per_model.items():
+        candidates = cands.segmentation.candidates
+        for s in (s for s in screened if s.model == name):
+            root = _root(candidates, s.candidate)
+            terms = s.parts
+            if root != s.candidate:
+                terms = screen_terms(models[name], queries[_points_key(cands, root)], s.result, settings,
+                                     np.random.default_rng(seed)) | {"rank": s.parts["rank"]}
+            score = screen_score(terms, settings, settings.class_freespace_weight)
+            if name not in scores or score < scores[name]:
+                scores[name], roots[name] = score, root
+    refits = []
+    if scores and settings.class_refit_margin > 0:
+        best = min(scores.values())
+        refit_settings = replace(settings, fit=settings.class_fit)
+        contended = [n for n in scores if scores[n] <= best + settings.class_refit_margin]
+        for name in contended if len(contended) > 1 else []:
+            cands, root = per_model[name], roots[name]
+            rank = cands.segmentation.candidates[root].summary.get("rank", 0.0)
+            refit = screen(models[name], name, queries[_points_key(cands, root)], root, refit_settings, seed, rank)
+            refits.append(refit)
+            scores[name] = min(scores[name], screen_score(refit.parts, settings, settings.class_freespace_weight))
+    return {name: scores.get(name) for name in models}, refits
+
+
+def _root(candidates: list, k: int) -> int:
+    """The top-most whole that candidate ``k`` was split from (``k`` when it was not split)."""
+    while candidates[k].parent is not None:
+        k = candidates[k].parent
+    return k
+
+
+def _with_refits(own: list[Screened], refits: list[Screened]) -> list[Screened]:
+    """``own`` screens with each candidate's refit in its stead where the refit scores lower."""
+    better = {r.candidate: r for r in refits}
+    return [better[s.candidate] if s.candidate in better and better[s.candidate].score < s.score else s for s in own]
 
 
 def screened_candidates(cands: object, n: int, thin: set[int] = frozenset()) -> list[int]:

@@ -238,14 +238,19 @@ def test_a_table_top_seen_apart_from_its_legs_rests_on_them(with_class):
     assert any((c.index >= table_points).all() for c in valid)  # the box stays apart
 
 
-def test_a_split_keeps_its_whole_as_a_candidate():
-    """A chair 3 cm from a box (one DBSCAN cluster) is cut in two; the whole stays a candidate
-    with its parts (for the screen to weigh), but proportions and ``at`` choose among the parts."""
+def _chair_beside_box() -> tuple[np.ndarray, np.ndarray]:
+    """Surface points (4000, 3) of a stand-in chair, and those plus 2000 of a box 3 cm beside it."""
     chair = stand_in_chair()
     side_box = box((0.4, 0.35, 0.5))
     side_box.apply_translation([chair.bounds[1][0] + 0.23, 0.0, 0.0])
     chair_points = _surface_points(chair, 4000, 0)
-    points = np.concatenate([chair_points, _surface_points(side_box, 2000, 1)])
+    return chair_points, np.concatenate([chair_points, _surface_points(side_box, 2000, 1)])
+
+
+def test_a_split_keeps_its_whole_as_a_candidate():
+    """A chair 3 cm from a box (one DBSCAN cluster) is cut in two; the whole stays a candidate
+    with its parts (for the screen to weigh), but proportions and ``at`` choose among the parts."""
+    chair_points, points = _chair_beside_box()
     up = np.array([0.0, 1.0, 0.0])
     result = segment_objects(points, points[:, 1], up, rng=np.random.default_rng(0), shape=chair_shape())
     cands = result.candidates
@@ -343,11 +348,7 @@ def test_a_neck_refused_for_want_of_class_evidence_is_kept_for_the_screen():
     a box alone has none."""
     from jsrte.metrics.surface import bounding_sphere
 
-    chair = stand_in_chair()
-    side_box = box((0.4, 0.35, 0.5))
-    side_box.apply_translation([chair.bounds[1][0] + 0.23, 0.0, 0.0])
-    chair_points = _surface_points(chair, 4000, 0)
-    points = np.concatenate([chair_points, _surface_points(side_box, 2000, 1)])
+    chair_points, points = _chair_beside_box()
     up = np.array([0.0, 1.0, 0.0])
     top = float(np.percentile(points[:, 1], 98))
     pair_like = ClassShape("pair", aspect=top / bounding_sphere(points)[1])  # the pair's own proportions

@@ -167,17 +167,22 @@ def test_a_bed_cut_at_its_headboard_is_fitted_whole(tmp_path, bed_model):
     assert labels[cands.segmented.index[picked]].sum() > 0.95 * labels[cands.segmented.index].sum()
 
 
+def chair_beside_box(chair, folder):
+    """A small room scan (scene, scan.ply path) of ``chair`` 2-3 cm from a 0.4 x 0.5 x 0.5 box."""
+    settings = replace(SMALL, scanner=replace(SMALL.scanner, width=240, height=180),
+                       first_neighbour_gap_m=(0.02, 0.03))
+    room = scan_room(chair, rng=np.random.default_rng(2), settings=settings, target_kind="chair",
+                     others=[("box", box((0.4, 0.5, 0.5)), "box")])
+    return room, write_room(room, folder / "room")
+
+
 @pytest.mark.slow
 def test_a_chair_beside_a_box_is_chosen_without_the_box(tmp_path, chair_model):
     """A held-out chair 2-3 cm from a box (one cluster, cut in two): the whole is screened too,
     and the chair alone is chosen."""
     from jsrte.fit.query import class_shape
 
-    settings = replace(SMALL, scanner=replace(SMALL.scanner, width=240, height=180),
-                       first_neighbour_gap_m=(0.02, 0.03))
-    room = scan_room(held_out("chair", 102), rng=np.random.default_rng(2), settings=settings, target_kind="chair",
-                     others=[("box", box((0.4, 0.5, 0.5)), "box")])
-    ply = write_room(room, tmp_path / "room")
+    room, ply = chair_beside_box(held_out("chair", 102), tmp_path)
 
     def segment(model):
         return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model))
@@ -416,11 +421,7 @@ def test_a_chair_and_a_box_one_candidate_are_cut_when_the_chair_model_explains_t
         return None if found is None else (found[0], found[1], False)
 
     monkeypatch.setattr(segment_module, "_cut", refused)
-    settings = replace(SMALL, scanner=replace(SMALL.scanner, width=240, height=180),
-                       first_neighbour_gap_m=(0.02, 0.03))
-    room = scan_room(held_out("chair", 106), rng=np.random.default_rng(2), settings=settings, target_kind="chair",
-                     others=[("box", box((0.4, 0.5, 0.5)), "box")])
-    ply = write_room(room, tmp_path / "room")
+    room, ply = chair_beside_box(held_out("chair", 106), tmp_path)
 
     def segment(model):
         return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model))

@@ -18,14 +18,9 @@ import torch
 from jsrte.fit.adam import Adam
 from jsrte.fit.optimize import hypothesis_losses
 from jsrte.fit.params import HypothesisBatch
-from jsrte.geometry.sim3 import rotation_angle_deg
+from jsrte.fit.quality import other_pose
 from jsrte.model.decoder import Decoder
 from jsrte.presets import FitSettings
-
-OTHER_POSE_DEG = 30.0
-"""Two hypotheses are at different poses when their rotations differ by more than this, or their
-centres by more than ``OTHER_POSE_SHIFT`` times the better one's scale (as fit.quality's margin)."""
-OTHER_POSE_SHIFT = 0.2
 
 
 def adam_steps(decoder: Decoder, batch: HypothesisBatch, draw: Callable[[int], object], settings: FitSettings, *,
@@ -62,17 +57,15 @@ def polish(decoder: Decoder, batch: HypothesisBatch, draw: Callable[[int], objec
 
 def near_tie(batch: HypothesisBatch, objective: torch.Tensor, margin: float) -> bool:
     """Whether the best hypothesis at another pose than the best one (by ``objective`` (H,), lower
-    is better) is within ``margin`` of it, relative: (theirs − best) / best < margin."""
+    is better; fit.quality's :func:`other_pose`) is within ``margin`` of it, relative:
+    (theirs − best) / best < margin."""
     values = objective.detach().cpu().numpy().astype(np.float64)
     order = np.argsort(values)
     best = batch.transform(int(order[0]))
     if not np.isfinite(values[order[0]]) or values[order[0]] <= 0:
         return False
     for h in order[1:]:
-        other = batch.transform(int(h))
-        turned = rotation_angle_deg(other.R, best.R) > OTHER_POSE_DEG
-        shifted = np.linalg.norm(other.t - best.t) > OTHER_POSE_SHIFT * best.s
-        if turned or shifted:
+        if other_pose(batch.transform(int(h)), best):
             return bool((values[h] - values[order[0]]) / values[order[0]] < margin)
     return False
 

@@ -130,8 +130,15 @@ def loss_margin(result: FitResult, symmetric: Callable[[Sim3], bool] | None = No
 def _other_pose(h: HypothesisReport, winner: Sim3) -> bool:
     if h.pruned or h.transform is None or not np.isfinite(h.loss):
         return False
-    turned = rotation_angle_deg(h.transform.R, winner.R) > OTHER_POSE_DEG
-    shifted = np.linalg.norm(h.transform.t - winner.t) > OTHER_POSE_SHIFT * winner.s
+    return other_pose(h.transform, winner)
+
+
+def other_pose(transform: Sim3, reference: Sim3) -> bool:
+    """Whether ``transform`` places the shape at another pose than ``reference``: turned by more
+    than ``OTHER_POSE_DEG`` or its centre moved by more than ``OTHER_POSE_SHIFT`` times the
+    reference's scale."""
+    turned = rotation_angle_deg(transform.R, reference.R) > OTHER_POSE_DEG
+    shifted = np.linalg.norm(transform.t - reference.t) > OTHER_POSE_SHIFT * reference.s
     return bool(turned or shifted)
 
 

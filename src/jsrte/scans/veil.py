@@ -26,7 +26,7 @@ import numpy as np
 class VeilSettings:
     """When a point counts as a mixed pixel (lengths in metres)."""
 
-    neighbour_px: float = 1.6
+    neighbour_px: float = 1.8
     """Image neighbours: directions within this many pixels (the median angle between a point
     and its nearest neighbour of the same view) of the point's own: its 8 neighbours."""
     noise_a_m: float = 0.0015
@@ -37,20 +37,33 @@ class VeilSettings:
     supports it ..."""
     min_tolerance_m: float = 0.02
     """... or at most this far, whichever is more."""
+    edge_sigmas: float = 3.0
+    edge_min_tolerance_m: float = 0.02
+    """At a depth edge (a neighbour farther than the tolerance above), the tolerance is this many
+    stds, or this far, whichever is more: a pixel that straddles an edge reads a depth pulled
+    towards the far side."""
 
 
 def mixed_pixels(points: np.ndarray, view: np.ndarray, cameras: np.ndarray,
                  settings: VeilSettings = VeilSettings()) -> np.ndarray:
     """(n,) bool, True for the mixed pixels among ``points`` (n, 3), each seen by the camera
     ``cameras[view[i]]`` (``view`` (n,) int, ``cameras`` (k, 3), same units as the points):
-    points that have image neighbours in their own view, none of them within the tolerance of
-    the point's range (``max(min_tolerance_m, sigmas * (a + b * r**2))``). A point with no image
-    neighbour at all (alone in its view) is kept."""
+    points whose :func:`veil_score` exceeds 1 (image neighbours in their own view, none of them
+    within the tolerance of the point's range). A point with no image neighbour is kept."""
+    return veil_score(points, view, cameras, settings) > 1.0
+
+
+def veil_score(points: np.ndarray, view: np.ndarray, cameras: np.ndarray,
+               settings: VeilSettings = VeilSettings()) -> np.ndarray:
+    """(n,) float: for each of ``points`` (n, 3), the smallest range difference to an image
+    neighbour in its own view (``view`` (n,) int into ``cameras`` (k, 3)), in units of the
+    tolerance at its range, ``max(min_tolerance_m, sigmas * (a + b * r**2))``; 0 for a point with
+    no image neighbour (alone in its view). Above 1: a mixed pixel."""
     from scipy.spatial import cKDTree
 
     points = np.asarray(points, dtype=np.float64)
     cameras = np.asarray(cameras, dtype=np.float64).reshape(-1, 3)
-    mixed = np.zeros(len(points), dtype=bool)
+    score = np.zeros(len(points))
     for k, camera in enumerate(cameras):
         index = np.flatnonzero(view == k)
         if len(index) < 2:
@@ -65,11 +78,14 @@ def mixed_pixels(points: np.ndarray, view: np.ndarray, cameras: np.ndarray,
         distance, neighbour = tree.query(directions, k=9, distance_upper_bound=settings.neighbour_px * pixel)
         found = np.isfinite(distance[:, 1:])
         other = np.where(found, neighbour[:, 1:], 0)
-        tolerance = np.maximum(settings.min_tolerance_m,
-                               settings.sigmas * (settings.noise_a_m + settings.noise_b_per_m * ranges**2))
-        supported = found & (np.abs(ranges[other] - ranges[:, None]) <= tolerance[:, None])
-        mixed[index] = found.any(axis=1) & ~supported.any(axis=1)
-    return mixed
+        sigma = settings.noise_a_m + settings.noise_b_per_m * ranges**2
+        tolerance = np.maximum(settings.min_tolerance_m, settings.sigmas * sigma)
+        step = np.where(found, ranges[other] - ranges[:, None], np.nan)
+        edge = (np.where(found, step, -np.inf) > tolerance[:, None]).any(axis=1)
+        tolerance = np.where(edge, np.maximum(settings.edge_min_tolerance_m, settings.edge_sigmas * sigma), tolerance)
+        gap = np.where(found, np.abs(step), np.inf).min(axis=1)
+        score[index] = np.where(np.isfinite(gap), gap / tolerance, 0.0)
+    return score
 
 
 def scan_mixed_pixels(points: np.ndarray, view: np.ndarray | None, cameras: np.ndarray | None,

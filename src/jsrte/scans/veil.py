@@ -28,7 +28,8 @@ class VeilSettings:
 
     neighbour_px: float = 1.8
     """Image neighbours: directions within this many pixels (the median angle between a point
-    and its nearest neighbour of the same view) of the point's own: its 8 neighbours."""
+    and its nearest neighbour of the same view, a little under one pixel) of the point's own:
+    its 8 neighbours."""
     noise_a_m: float = 0.0015
     noise_b_per_m: float = 0.0019
     """The sensor's depth noise std at range r: ``a + b * r**2`` (Kinect-like)."""
@@ -37,11 +38,6 @@ class VeilSettings:
     supports it ..."""
     min_tolerance_m: float = 0.02
     """... or at most this far, whichever is more."""
-    edge_sigmas: float = 3.0
-    edge_min_tolerance_m: float = 0.02
-    """At a depth edge (a neighbour farther than the tolerance above), the tolerance is this many
-    stds, or this far, whichever is more: a pixel that straddles an edge reads a depth pulled
-    towards the far side."""
 
 
 def mixed_pixels(points: np.ndarray, view: np.ndarray, cameras: np.ndarray,
@@ -80,10 +76,7 @@ def veil_score(points: np.ndarray, view: np.ndarray, cameras: np.ndarray,
         other = np.where(found, neighbour[:, 1:], 0)
         sigma = settings.noise_a_m + settings.noise_b_per_m * ranges**2
         tolerance = np.maximum(settings.min_tolerance_m, settings.sigmas * sigma)
-        step = np.where(found, ranges[other] - ranges[:, None], np.nan)
-        edge = (np.where(found, step, -np.inf) > tolerance[:, None]).any(axis=1)
-        tolerance = np.where(edge, np.maximum(settings.edge_min_tolerance_m, settings.edge_sigmas * sigma), tolerance)
-        gap = np.where(found, np.abs(step), np.inf).min(axis=1)
+        gap = np.where(found, np.abs(ranges[other] - ranges[:, None]), np.inf).min(axis=1)
         score[index] = np.where(np.isfinite(gap), gap / tolerance, 0.0)
     return score
 

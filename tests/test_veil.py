@@ -10,7 +10,7 @@ import pytest
 from jsrte.geometry.sim3 import Sim3
 from jsrte.scans.io import ScanCloud, load_scan
 from jsrte.scans.ply import read_ply_scan, write_ply_scan
-from jsrte.scans.preprocess import segment_scan
+from jsrte.scans.preprocess import PrepareSettings, segment_scan
 from jsrte.scans.scanner import ScannerSettings, VirtualScan, write_scan
 from jsrte.scans.veil import VeilSettings, mixed_pixels, scan_mixed_pixels
 
@@ -105,9 +105,13 @@ def test_a_file_without_camera_index_loads_and_segments_without_the_test(tmp_pat
     write_ply_scan(plain, scan.points, scan.normals, colors)
     cloud = load_scan(plain)
     assert cloud.view is None and np.array_equal(cloud.points, scan.points)
-    segmented = segment_scan(cloud, rng=np.random.default_rng(0), viewpoints=scan.cameras)
+    on = PrepareSettings(veil=VeilSettings())
+    segmented = segment_scan(cloud, rng=np.random.default_rng(0), viewpoints=scan.cameras, settings=on)
     assert segmented.mixed is None and "mixed_pixels" not in segmented.segmentation.removed
-    with_view = segment_scan(replace(cloud, view=scan.view), rng=np.random.default_rng(0), viewpoints=scan.cameras)
+    default = segment_scan(replace(cloud, view=scan.view), rng=np.random.default_rng(0), viewpoints=scan.cameras)
+    assert default.mixed is None and np.array_equal(default.index, segmented.index)  # off by default
+    with_view = segment_scan(replace(cloud, view=scan.view), rng=np.random.default_rng(0), viewpoints=scan.cameras,
+                             settings=on)
     assert with_view.mixed is not None and len(with_view.mixed) == len(scan.points)
     removed = with_view.segmentation.removed["mixed_pixels"]
     # a clean scan has no mixed pixels: what goes are its flying pixels and a few points at

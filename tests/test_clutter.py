@@ -363,3 +363,19 @@ def test_a_neck_refused_for_want_of_class_evidence_is_kept_for_the_screen():
     crate = _surface_points(box((0.5, 0.6, 0.4)), 4000, 2)
     alone = segment_objects(crate, crate[:, 1], up, rng=np.random.default_rng(0), shape=pair_like)
     assert not any(c.neck or c.parts for c in alone.candidates)  # one box: nothing to cut
+
+
+def test_the_veil_test_finds_mixed_and_flying_pixels_of_a_room(tmp_path, room):
+    from jsrte.scans.io import load_scan
+    from jsrte.scans.scene import NOTHING_LABEL
+    from jsrte.scans.veil import mixed_pixels
+
+    cloud = load_scan(write_room(room, tmp_path / "room"))
+    assert np.array_equal(cloud.view, room.scan.view)  # each point's camera, from the file
+    found = mixed_pixels(cloud.points, cloud.view, room.scan.cameras)
+    mixed, flying = room.labels == NOTHING_LABEL, room.scan.is_outlier & (room.labels != NOTHING_LABEL)
+    assert (found & (mixed | flying)).sum() >= 0.85 * found.sum()  # 0.9 here
+    assert (found & flying).sum() >= 0.8 * flying.sum()  # depth thrown 5-30 cm off: 0.92
+    assert (found & mixed).sum() >= 0.25 * mixed.sum()  # the rest lie within the noise of a surface
+    surface = (room.labels >= 0) & ~room.scan.is_outlier
+    assert (found & surface).sum() <= 0.01 * surface.sum()  # 0.25%

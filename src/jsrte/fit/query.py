@@ -132,7 +132,7 @@ class ScanCandidates:
             points, sdf = scan_sdf_samples(prepared.points, prepared.normals, settings=settings, rng=rng)
             n_rays = 0
             if segmented.viewpoints is not None:
-                ray_points, ray_sdf = ray_freespace_samples(prepared.points, segmented.cloud.points,
+                ray_points, ray_sdf = ray_freespace_samples(prepared.points, segmented.seen_points(),
                                                             segmented.viewpoints, rng=rng, settings=settings)
                 points, sdf, n_rays = (np.concatenate([points, ray_points]), np.concatenate([sdf, ray_sdf]),
                                        len(ray_sdf))

@@ -37,11 +37,14 @@ class ScanCloud:
     points : (n, 3) float64
     normals : (n, 3) float64 unit vectors, or None when the file has none
     path : the file it came from (None when built in memory)
+    view : (n,) int64 index of the camera (depth image) that saw each point, an index into
+        the scan's cameras (the PLY vertex property ``view``), or None when unknown
     """
 
     points: np.ndarray
     normals: np.ndarray | None = None
     path: Path | None = None
+    view: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -95,11 +98,12 @@ def load_scan(
         check_ply_complete(path)
     elif suffix == ".pcd":
         check_pcd_complete(path)
+    view = None
     if suffix in SCAN_MESH_SUFFIXES or (suffix == ".ply" and ply_face_count(path) > 0):
         points, normals = _read_mesh(path, dense_points, rng)
     else:
-        points, normals = _read_cloud(path)
-    return _checked(points, normals, path)
+        points, normals, view = _read_cloud(path)
+    return _checked(points, normals, path, view)
 
 
 def read_scan_info(ply_path: str | Path) -> ScanInfo | None:
@@ -122,14 +126,14 @@ def read_scan_info(ply_path: str | Path) -> ScanInfo | None:
         raise JsrteError(f"not a scan description ({type(exc).__name__}: {exc})", json_path) from exc
 
 
-def _read_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Points (n, 3) and normals (n, 3) or None of a point-cloud file: PLY by
-    :func:`jsrte.scans.ply.read_ply_cloud`, the other formats (and PLY layouts it leaves) by
-    Open3D, imported only for them."""
+def _read_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Points (n, 3), normals (n, 3) or None and camera indices (n,) or None of a point-cloud
+    file: PLY by :func:`jsrte.scans.ply.read_ply_scan`, the other formats (and PLY layouts it
+    leaves) by Open3D, imported only for them (no camera indices)."""
     if path.suffix.lower() == ".ply":
-        from jsrte.scans.ply import read_ply_cloud
+        from jsrte.scans.ply import read_ply_scan
 
-        read = read_ply_cloud(path)
+        read = read_ply_scan(path)
         if read is not None:
             return read
     import open3d as o3d
@@ -142,8 +146,8 @@ def _read_cloud(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     points = np.asarray(cloud.points, dtype=np.float64)
     normals = np.asarray(cloud.normals, dtype=np.float64) if cloud.has_normals() else None
     if len(points) == 0 and path.suffix.lower() in (".xyz", ".xyzn", ".pts"):
-        return _read_text_rows(path), None  # e.g. a PTS file without its count line
-    return points, normals
+        return _read_text_rows(path), None, None  # e.g. a PTS file without its count line
+    return points, normals, None
 
 
 def _read_text_rows(path: Path, prefix: str | None = None) -> np.ndarray:
@@ -196,7 +200,8 @@ def _read_mesh(path: Path, dense_points: int, rng: np.random.Generator
     return points, normals
 
 
-def _checked(points: np.ndarray, normals: np.ndarray | None, path: Path) -> ScanCloud:
+def _checked(points: np.ndarray, normals: np.ndarray | None, path: Path,
+             view: np.ndarray | None = None) -> ScanCloud:
     points = np.asarray(points, dtype=np.float64)
     if points.size == 0:
         points = points.reshape(0, 3)
@@ -214,4 +219,7 @@ def _checked(points: np.ndarray, normals: np.ndarray | None, path: Path) -> Scan
             normals = None  # unusable normals are re-estimated downstream
         else:
             normals = normals / length[:, None]
-    return ScanCloud(points=points, normals=normals, path=path)
+    if view is not None and (len(view) != len(points) or (len(view) and view.min() < 0)):
+        raise JsrteError(f"has {len(view)} camera indices ('view') for {len(points)} points, "
+                         "or a negative one", path)
+    return ScanCloud(points=points, normals=normals, path=path, view=view)

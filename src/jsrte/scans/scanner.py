@@ -194,7 +194,8 @@ def write_scan(
     scan: VirtualScan, ply_path: str | Path, *, seed: int | None = None,
     mesh: str | Path | None = None, colors: np.ndarray | None = None,
 ) -> Path:
-    """Write ``scan`` as a binary PLY with normals and colours, and ``<stem>.json`` beside it.
+    """Write ``scan`` as a binary PLY with normals, colours and each point's camera index (the
+    vertex property ``view``, :mod:`jsrte.scans.ply`), and ``<stem>.json`` beside it.
 
     Both files are written atomically. Object points are coloured ``OBJECT_COLOR``, floor
     points ``FLOOR_COLOR``, unless ``colors`` ((n, 3) uint8 RGB) are given. Returns
@@ -202,20 +203,18 @@ def write_scan(
     """
     import json
 
-    import open3d as o3d
+    from jsrte.scans.ply import write_ply_scan
 
     ply_path = Path(ply_path)
     json_path = ply_path.with_suffix(".json")
     if colors is None:
         colors = np.where(scan.is_object[:, None], OBJECT_COLOR, FLOOR_COLOR)
-    colors = np.asarray(colors, dtype=np.float64) / 255.0
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(scan.points))
-    cloud.normals = o3d.utility.Vector3dVector(scan.normals)
-    cloud.colors = o3d.utility.Vector3dVector(colors)
     text = json.dumps(scan.info(seed=seed, mesh=mesh), indent=2) + "\n"
     with atomic_path(ply_path) as tmp_ply, atomic_path(json_path) as tmp_json:
-        if not o3d.io.write_point_cloud(str(tmp_ply), cloud, write_ascii=False):
-            raise JsrteError("could not write point cloud", ply_path)
+        try:
+            write_ply_scan(tmp_ply, scan.points, scan.normals, np.asarray(colors, dtype=np.uint8), scan.view)
+        except OSError as exc:
+            raise JsrteError(f"could not write point cloud ({exc})", ply_path) from exc
         tmp_json.write_text(text)
     return ply_path
 

@@ -166,7 +166,8 @@ class Segmentation:
     chosen : position of the chosen candidate in ``candidates``
     candidates : every candidate, the chosen one included
     walls : the walls removed (normal, offset, points)
-    removed : points removed as walls, as DBSCAN noise, in small clusters
+    removed : points removed as walls, as DBSCAN noise, in small clusters (and, first, as mixed
+        pixels: ``jsrte.scans.preprocess.segment_scan``)
     how : how the object was chosen ("class", "at", "largest")
     """
 

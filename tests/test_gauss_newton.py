@@ -476,3 +476,67 @@ def test_the_adam_stage_runs_on_a_near_tie_or_always_and_carries_both_poses_on(w
     assert rot_tied < 0.5 * rot_alone and t_tied < t_alone
     assert rot_tied < 2.0
     assert int(tied.survivors[int(np.argmin(tied.losses))]) == 0  # the right pose wins
+
+
+class _TwoCodeBoxDecoder(torch.nn.Module):
+    """f(x, z): a box whose half-extents along x and y are 0.3 + 0.1 z_0 and 0.3 + 0.1 z_1 (0.3 along z)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.config = DecoderConfig(latent_size=2, hidden=8, depth=2, skip_layer=1)
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        half = torch.cat([0.3 + 0.1 * codes, torch.full_like(codes[:, :1], 0.3)], dim=-1)
+        q = points.abs() - half
+        return q.clamp(min=0).norm(dim=-1) + q.max(dim=-1).values.clamp(max=0)
+
+
+def test_the_retrieval_start_picks_the_training_code_that_made_the_surface():
+    """A box made by training code 5 of 8, seen at a known pose: with the pose held and no solver
+    iteration, the retrieval start's code is that training code (each of the 8 scored on 200
+    samples); the mean of all 8 in whitened space is the training codes' mean."""
+    rng = np.random.default_rng(3)
+    codes = rng.normal(size=(8, 2)) * 1.5
+    decoder = _TwoCodeBoxDecoder()
+    points = rng.uniform(-0.6, 0.6, size=(3000, 3))
+    sdf = decoder(torch.as_tensor(points), torch.as_tensor(codes[5]).expand(3000, 2)).numpy()
+    near = np.abs(sdf) < 0.02
+    query = SdfQuery(points, sdf, points[near])
+    prior = LatentPrior.of_codes(codes, shrinkage=0.01)
+    start = Init(scale=1.0, psi=0.0, rho=0.0, theta=0.0, translation=np.zeros(3))
+    pose = frozenset({"scale", "psi", "rho", "theta", "translation"})
+    settings = replace(SETTINGS, latent_space="whitened", prune_after=None, iterations=0, clamp_canonical=None,
+                       retrieval_start=1, retrieval_samples=200)
+
+    def code(k: int) -> tuple[np.ndarray, dict]:
+        out = solve(decoder, query, [start], replace(settings, retrieval_start=k), fixed=pose,
+                    generator=torch.Generator().manual_seed(0), prior=prior)
+        return out.batch.latent[0].detach().numpy(), out.evaluation_parts
+
+    best, parts = code(1)
+    np.testing.assert_allclose(best, codes[5], atol=1e-9)
+    assert parts["retrieval"] == 8 * 200
+    np.testing.assert_allclose(code(8)[0], codes.mean(axis=0), atol=1e-9)
+
+
+def test_levenberg_marquardt_after_the_adam_stage_settles_the_code_it_left(widening, widened_mesh):
+    """One start at the true pose, a short Adam stage at a large learning rate (it leaves the width
+    code about 0.3 off): 5 Levenberg–Marquardt iterations after it bring the code to less than half
+    that distance from the truth, and their evaluations are counted (at most one linearization and 5 steps on the
+    solve's 2000 samples)."""
+    truth, up = tilted_truth(theta=0.4)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(8))
+    psi, rho = spherical_from_axis(up)
+    start = Init(truth.s, psi, rho, 0.4, truth.t, latent=np.zeros(3), base_rotation=rotation_between([0, 1, 0], up))
+    settings = replace(SETTINGS, prune_after=None, iterations=2, adam_stage="always", adam_stage_iterations=10,
+                       adam_stage_decay_after=10, adam_stage_lr=0.1, adam_stage_samples=500)
+
+    def run(refine: int):
+        out = solve(widening.decoder, query, [start], replace(settings, refine_iterations=refine),
+                    fixed=frozenset({"psi", "rho"}), generator=torch.Generator().manual_seed(0))
+        return abs(float(out.batch.latent[0, 0].detach()) - TRUE_CODE[0]), out.evaluation_parts
+
+    (stage_only, parts_stage), (refined, parts) = run(0), run(5)
+    assert "refine" not in parts_stage
+    assert 2000 <= parts["refine"] <= 6 * 2000
+    assert refined < 0.5 * stage_only

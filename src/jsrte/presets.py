@@ -186,6 +186,12 @@ class FitSettings:
     ``yaw_screen_samples`` samples), as more hypotheses; only the copy with the lowest objective
     of each survivor is kept at the end. Levenberg–Marquardt goes to the nearest minimum of the
     code; on 4 of 20 tuning scans that was a local one (docs/solver.md). 0: none."""
+    retrieval_start: int = 0
+    """Gauss–Newton, whitened latent: before the solve, every start's code becomes the mean
+    (whitened) of this many training codes with the lowest objective at its start pose (forward
+    passes on ``retrieval_samples`` samples; 1: the best training code); 0: the mean code."""
+    retrieval_samples: int = 100
+    """Samples on which the training codes are scored for the retrieval start."""
     code_screen_samples: int | None = None
     """Samples on which the training codes are scored at each survivor's pose; None:
     ``yaw_screen_samples``."""
@@ -216,6 +222,9 @@ class FitSettings:
     adam_stage_decay_after: int = 40
     adam_stage_samples: int = 1500
     """Samples of each of its steps."""
+    refine_iterations: int = 0
+    """Gauss–Newton: after the Adam stage, at most this many Levenberg–Marquardt iterations on
+    every survivor (the solve's last sample set) settle the code where the stage left it; 0: none."""
 
     def __post_init__(self) -> None:
         """Every mode field holds one of its values (a typo is an error here, not a silent default)."""

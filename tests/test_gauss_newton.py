@@ -540,3 +540,30 @@ def test_levenberg_marquardt_after_the_adam_stage_settles_the_code_it_left(widen
     assert "refine" not in parts_stage
     assert 2000 <= parts["refine"] <= 6 * 2000
     assert refined < 0.5 * stage_only
+
+
+def test_only_the_contenders_take_the_adam_stage(widening, widened_mesh):
+    """``contenders``: of objectives 1.01 (yaw 10°), 1.00 (yaw 0), 1.04 (yaw 90°) and 1.02 (yaw 5°),
+    the best and the 90° one within 5%, the best alone within 3%. In a solve with
+    ``adam_stage_contenders_only``, two starts 0.1 rad apart (one pose): only the better takes the
+    stage (60 steps on 1000 samples, one hypothesis), the other is recorded as pruned."""
+    from jsrte.fit.polish import contenders
+
+    starts = [Init(1.0, 0.0, 0.0, np.deg2rad(yaw), np.zeros(3)) for yaw in (10.0, 0.0, 90.0, 5.0)]
+    batch = HypothesisBatch(starts, 3, latent_init_std=0.0)
+    objective = torch.tensor([1.01, 1.0, 1.04, 1.02], dtype=torch.float64)
+    assert contenders(batch, objective, 0.05) == [1, 2]
+    assert contenders(batch, objective, 0.03) == [1]
+
+    truth, up = tilted_truth(theta=0.7)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(7))
+    psi, rho = spherical_from_axis(up)
+    base = rotation_between([0, 1, 0], up)
+    near = [Init(truth.s, psi, rho, 0.7 + d, truth.t, latent=np.zeros(3), base_rotation=base) for d in (0.1, 0.0)]
+    settings = replace(SETTINGS, prune_after=None, iterations=1, tolerance=0.0, adam_stage="always",
+                       adam_stage_iterations=60, adam_stage_samples=1000, adam_stage_contenders_only=True)
+    out = solve(widening.decoder, query, near, settings, fixed=frozenset({"psi", "rho"}),
+                generator=torch.Generator().manual_seed(0))
+    assert out.evaluation_parts["adam stage"] == 60 * 1 * 1000
+    assert len(out.survivors) == 1 and len(out.pruned_losses) == 1
+    assert set(out.pruned_losses) | set(out.survivors.tolist()) == {0, 1}

@@ -214,6 +214,10 @@ class FitSettings:
     goes straight to the nearest minimum of the code; these steps let each survivor leave it."""
     adam_stage_margin: float = 0.1
     """The relative gap between two poses' objectives under which "near-tie" runs the stage."""
+    adam_stage_contenders_only: bool = False
+    """Only the hypotheses still in contention take the Adam stage: the best one, and the best at
+    another pose where it ends within ``adam_stage_margin`` of it (the others are pruned); False:
+    every survivor takes it."""
     adam_stage_iterations: int = 100
     """Adam steps of that stage."""
     adam_stage_lr: float = 0.05

@@ -57,7 +57,7 @@ from jsrte.fit.optimize import (
     pruning_stages,
 )
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
-from jsrte.fit.polish import adam_stage, adam_stage_due, polish
+from jsrte.fit.polish import adam_stage, adam_stage_due, contenders, polish
 from jsrte.geometry.sim3 import rotation_from_paper
 from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.presets import FitSettings
@@ -371,6 +371,8 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     if len(set(survivors.tolist())) < len(survivors):
         survivors, objective = _best_copies(batch, survivors, objective)
     if adam_stage_due(batch, objective, settings):
+        if settings.adam_stage_contenders_only:
+            survivors, objective = _contenders_only(batch, survivors, objective, pruned, settings.adam_stage_margin)
         count("adam stage", adam_stage(decoder, batch, problem_of, settings))
         if settings.refine_iterations:
             count("refine", _refine(decoder, batch, problem, whitening, free, settings))
@@ -430,6 +432,17 @@ def _refine(decoder: Decoder, batch: HypothesisBatch, problem: Problem,
         evaluations += lm_iteration(decoder, p, base, lin, damping, moving, problem, whitening, free, settings)
     unpack_into(batch, p)
     return evaluations
+
+
+def _contenders_only(batch: HypothesisBatch, survivors: np.ndarray, objective: torch.Tensor, pruned: dict[int, float],
+                     margin: float) -> tuple[np.ndarray, torch.Tensor]:
+    """Keep only the hypotheses of ``batch`` still in contention (fit.polish's :func:`contenders`):
+    the best, and the best at another pose within ``margin`` of it; the others go to ``pruned``
+    with their objective. Returns the kept start indices and objectives."""
+    keep = contenders(batch, objective, margin)
+    pruned.update({int(survivors[h]): float(objective[h]) for h in range(len(survivors)) if h not in keep})
+    batch.keep(torch.as_tensor(keep))
+    return survivors[keep], objective[torch.as_tensor(keep, device=objective.device)]
 
 
 def _drop_failed(p: torch.Tensor, base: torch.Tensor, lin: Linearization, damping: torch.Tensor,

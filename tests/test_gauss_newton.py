@@ -375,7 +375,8 @@ def test_polish_takes_adam_steps_on_fresh_samples_and_lowers_the_objective(widen
 
 def test_the_translation_search_finds_a_translation_off_by_a_third_of_the_scale(widening, widened_mesh):
     """A start off by 0.3 s across the up axis: the search's grid moves it within a grid step of the
-    truth (one iteration), and the solve then recovers the known transform and code."""
+    truth (one iteration), scored on ``yaw_screen_samples`` or on ``translation_search_samples``
+    samples, and the solve then recovers the known transform and code."""
     truth, up = tilted_truth(theta=1.0)
     query = make_query(widened_mesh, truth, up, np.random.default_rng(5))
     psi, rho = spherical_from_axis(up)
@@ -396,7 +397,11 @@ def test_the_translation_search_finds_a_translation_off_by_a_third_of_the_scale(
     assert len(translation_offsets(settings)) == 81 and not translation_offsets(settings)[0].any()
     searched, alone = run(1, 0.4), run(1, 0.0)
     assert error(searched) < 0.1 * truth.s < error(alone)
-    assert searched.evaluations >= 81 * settings.yaw_screen_samples
+    assert searched.evaluation_parts["translation search"] == 81 * settings.yaw_screen_samples
+    own = solve(widening.decoder, query, [start], replace(settings, iterations=1, translation_search_samples=700),
+                fixed=frozenset({"psi", "rho"}), generator=torch.Generator().manual_seed(0))
+    assert own.evaluation_parts["translation search"] == 81 * 700  # scored on its own sample count
+    assert error(own) < 0.1 * truth.s
     joint = run(40, 0.4)
     assert float(joint.batch.scale[0].detach()) == pytest.approx(truth.s, rel=0.02)
     assert rotation_angle_deg(joint.batch.transform(0).R, truth.R) < 2.0

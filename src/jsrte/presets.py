@@ -172,9 +172,12 @@ class FitSettings:
     translation_search: float = 0.0
     """Gauss–Newton: at the first pruning, every survivor moves to the translation of lowest
     objective on a grid across its up axis reaching this far each way (units of s0), code and
-    the rest of the pose held (forward passes on ``yaw_screen_samples`` samples); 0: none."""
+    the rest of the pose held (forward passes on ``translation_search_samples`` samples); 0: none."""
     translation_search_step: float = 0.1
     """Step of that grid (units of s0)."""
+    translation_search_samples: int | None = None
+    """Samples on which the translations are scored (the same for every one); None:
+    ``yaw_screen_samples``."""
     yaw_screen_keep: int | None = None
     """Gauss–Newton: screen the yaw starts (the θ grid) by forward passes only, at their
     initial pose and code, and solve only the best this many; None: solve them all."""

@@ -479,9 +479,11 @@ def _translation_search(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, p
                         settings: FitSettings) -> tuple[torch.Tensor, int]:
     """Move every hypothesis of p (H, 7 + d) to the translation of lowest objective among
     :func:`translation_offsets` (times s0) across its own up axis (the second column of its
-    rotation), its code and the rest of its pose held; forward passes on ``yaw_screen_samples``
-    samples. Returns p and the evaluations spent."""
-    screen = problem_of(settings.yaw_screen_samples)
+    rotation), its code and the rest of its pose held; forward passes on
+    ``translation_search_samples`` samples (unset: ``yaw_screen_samples``). Returns p and the
+    evaluations spent."""
+    screen = problem_of(settings.yaw_screen_samples if settings.translation_search_samples is None
+                        else settings.translation_search_samples)
     offsets = translation_offsets(settings).to(p.device) * problem_of.s0
     rot, _ = _rotations(p[:, 1:4], base)
     up = rot[:, :, 1]

@@ -375,7 +375,8 @@ def test_polish_takes_adam_steps_on_fresh_samples_and_lowers_the_objective(widen
 
 def test_the_translation_search_finds_a_translation_off_by_a_third_of_the_scale(widening, widened_mesh):
     """A start off by 0.3 s across the up axis: the search's grid moves it within a grid step of the
-    truth (one iteration), and the solve then recovers the known transform and code."""
+    truth (one iteration), scored on ``yaw_screen_samples`` or on ``translation_search_samples``
+    samples, and the solve then recovers the known transform and code."""
     truth, up = tilted_truth(theta=1.0)
     query = make_query(widened_mesh, truth, up, np.random.default_rng(5))
     psi, rho = spherical_from_axis(up)
@@ -396,7 +397,11 @@ def test_the_translation_search_finds_a_translation_off_by_a_third_of_the_scale(
     assert len(translation_offsets(settings)) == 81 and not translation_offsets(settings)[0].any()
     searched, alone = run(1, 0.4), run(1, 0.0)
     assert error(searched) < 0.1 * truth.s < error(alone)
-    assert searched.evaluations >= 81 * settings.yaw_screen_samples
+    assert searched.evaluation_parts["translation search"] == 81 * settings.yaw_screen_samples
+    own = solve(widening.decoder, query, [start], replace(settings, iterations=1, translation_search_samples=700),
+                fixed=frozenset({"psi", "rho"}), generator=torch.Generator().manual_seed(0))
+    assert own.evaluation_parts["translation search"] == 81 * 700  # scored on its own sample count
+    assert error(own) < 0.1 * truth.s
     joint = run(40, 0.4)
     assert float(joint.batch.scale[0].detach()) == pytest.approx(truth.s, rel=0.02)
     assert rotation_angle_deg(joint.batch.transform(0).R, truth.R) < 2.0
@@ -476,3 +481,94 @@ def test_the_adam_stage_runs_on_a_near_tie_or_always_and_carries_both_poses_on(w
     assert rot_tied < 0.5 * rot_alone and t_tied < t_alone
     assert rot_tied < 2.0
     assert int(tied.survivors[int(np.argmin(tied.losses))]) == 0  # the right pose wins
+
+
+class _TwoCodeBoxDecoder(torch.nn.Module):
+    """f(x, z): a box whose half-extents along x and y are 0.3 + 0.1 z_0 and 0.3 + 0.1 z_1 (0.3 along z)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.config = DecoderConfig(latent_size=2, hidden=8, depth=2, skip_layer=1)
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        half = torch.cat([0.3 + 0.1 * codes, torch.full_like(codes[:, :1], 0.3)], dim=-1)
+        q = points.abs() - half
+        return q.clamp(min=0).norm(dim=-1) + q.max(dim=-1).values.clamp(max=0)
+
+
+def test_the_retrieval_start_picks_the_training_code_that_made_the_surface():
+    """A box made by training code 5 of 8, seen at a known pose: with the pose held and no solver
+    iteration, the retrieval start's code is that training code (each of the 8 scored on 200
+    samples); the mean of all 8 in whitened space is the training codes' mean."""
+    rng = np.random.default_rng(3)
+    codes = rng.normal(size=(8, 2)) * 1.5
+    decoder = _TwoCodeBoxDecoder()
+    points = rng.uniform(-0.6, 0.6, size=(3000, 3))
+    sdf = decoder(torch.as_tensor(points), torch.as_tensor(codes[5]).expand(3000, 2)).numpy()
+    near = np.abs(sdf) < 0.02
+    query = SdfQuery(points, sdf, points[near])
+    prior = LatentPrior.of_codes(codes, shrinkage=0.01)
+    start = Init(scale=1.0, psi=0.0, rho=0.0, theta=0.0, translation=np.zeros(3))
+    pose = frozenset({"scale", "psi", "rho", "theta", "translation"})
+    settings = replace(SETTINGS, latent_space="whitened", prune_after=None, iterations=0, clamp_canonical=None,
+                       retrieval_start=1, retrieval_samples=200)
+
+    def code(k: int) -> tuple[np.ndarray, dict]:
+        out = solve(decoder, query, [start], replace(settings, retrieval_start=k), fixed=pose,
+                    generator=torch.Generator().manual_seed(0), prior=prior)
+        return out.batch.latent[0].detach().numpy(), out.evaluation_parts
+
+    best, parts = code(1)
+    np.testing.assert_allclose(best, codes[5], atol=1e-9)
+    assert parts["retrieval"] == 8 * 200
+    np.testing.assert_allclose(code(8)[0], codes.mean(axis=0), atol=1e-9)
+
+
+def test_levenberg_marquardt_after_the_adam_stage_settles_the_code_it_left(widening, widened_mesh):
+    """One start at the true pose, a short Adam stage at a large learning rate (it leaves the width
+    code about 0.3 off): 5 Levenberg–Marquardt iterations after it bring the code to less than half
+    that distance from the truth, and their evaluations are counted (at most one linearization and 5 steps on the
+    solve's 2000 samples)."""
+    truth, up = tilted_truth(theta=0.4)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(8))
+    psi, rho = spherical_from_axis(up)
+    start = Init(truth.s, psi, rho, 0.4, truth.t, latent=np.zeros(3), base_rotation=rotation_between([0, 1, 0], up))
+    settings = replace(SETTINGS, prune_after=None, iterations=2, adam_stage="always", adam_stage_iterations=10,
+                       adam_stage_decay_after=10, adam_stage_lr=0.1, adam_stage_samples=500)
+
+    def run(refine: int):
+        out = solve(widening.decoder, query, [start], replace(settings, refine_iterations=refine),
+                    fixed=frozenset({"psi", "rho"}), generator=torch.Generator().manual_seed(0))
+        return abs(float(out.batch.latent[0, 0].detach()) - TRUE_CODE[0]), out.evaluation_parts
+
+    (stage_only, parts_stage), (refined, parts) = run(0), run(5)
+    assert "refine" not in parts_stage
+    assert 2000 <= parts["refine"] <= 6 * 2000
+    assert refined < 0.5 * stage_only
+
+
+def test_only_the_contenders_take_the_adam_stage(widening, widened_mesh):
+    """``contenders``: of objectives 1.01 (yaw 10°), 1.00 (yaw 0), 1.04 (yaw 90°) and 1.02 (yaw 5°),
+    the best and the 90° one within 5%, the best alone within 3%. In a solve with
+    ``adam_stage_contenders_only``, two starts 0.1 rad apart (one pose): only the better takes the
+    stage (60 steps on 1000 samples, one hypothesis), the other is recorded as pruned."""
+    from jsrte.fit.polish import contenders
+
+    starts = [Init(1.0, 0.0, 0.0, np.deg2rad(yaw), np.zeros(3)) for yaw in (10.0, 0.0, 90.0, 5.0)]
+    batch = HypothesisBatch(starts, 3, latent_init_std=0.0)
+    objective = torch.tensor([1.01, 1.0, 1.04, 1.02], dtype=torch.float64)
+    assert contenders(batch, objective, 0.05) == [1, 2]
+    assert contenders(batch, objective, 0.03) == [1]
+
+    truth, up = tilted_truth(theta=0.7)
+    query = make_query(widened_mesh, truth, up, np.random.default_rng(7))
+    psi, rho = spherical_from_axis(up)
+    base = rotation_between([0, 1, 0], up)
+    near = [Init(truth.s, psi, rho, 0.7 + d, truth.t, latent=np.zeros(3), base_rotation=base) for d in (0.1, 0.0)]
+    settings = replace(SETTINGS, prune_after=None, iterations=1, tolerance=0.0, adam_stage="always",
+                       adam_stage_iterations=60, adam_stage_samples=1000, adam_stage_contenders_only=True)
+    out = solve(widening.decoder, query, near, settings, fixed=frozenset({"psi", "rho"}),
+                generator=torch.Generator().manual_seed(0))
+    assert out.evaluation_parts["adam stage"] == 60 * 1 * 1000
+    assert len(out.survivors) == 1 and len(out.pruned_losses) == 1
+    assert set(out.pruned_losses) | set(out.survivors.tolist()) == {0, 1}

@@ -172,9 +172,12 @@ class FitSettings:
     translation_search: float = 0.0
     """Gauss–Newton: at the first pruning, every survivor moves to the translation of lowest
     objective on a grid across its up axis reaching this far each way (units of s0), code and
-    the rest of the pose held (forward passes on ``yaw_screen_samples`` samples); 0: none."""
+    the rest of the pose held (forward passes on ``translation_search_samples`` samples); 0: none."""
     translation_search_step: float = 0.1
     """Step of that grid (units of s0)."""
+    translation_search_samples: int | None = None
+    """Samples on which the translations are scored (the same for every one); None:
+    ``yaw_screen_samples``."""
     yaw_screen_keep: int | None = None
     """Gauss–Newton: screen the yaw starts (the θ grid) by forward passes only, at their
     initial pose and code, and solve only the best this many; None: solve them all."""
@@ -186,6 +189,12 @@ class FitSettings:
     ``yaw_screen_samples`` samples), as more hypotheses; only the copy with the lowest objective
     of each survivor is kept at the end. Levenberg–Marquardt goes to the nearest minimum of the
     code; on 4 of 20 tuning scans that was a local one (docs/solver.md). 0: none."""
+    retrieval_start: int = 0
+    """Gauss–Newton, whitened latent: before the solve, every start's code becomes the mean
+    (whitened) of this many training codes with the lowest objective at its start pose (forward
+    passes on ``retrieval_samples`` samples; 1: the best training code); 0: the mean code."""
+    retrieval_samples: int = 100
+    """Samples on which the training codes are scored for the retrieval start."""
     code_screen_samples: int | None = None
     """Samples on which the training codes are scored at each survivor's pose; None:
     ``yaw_screen_samples``."""
@@ -208,6 +217,10 @@ class FitSettings:
     goes straight to the nearest minimum of the code; these steps let each survivor leave it."""
     adam_stage_margin: float = 0.1
     """The relative gap between two poses' objectives under which "near-tie" runs the stage."""
+    adam_stage_contenders_only: bool = False
+    """Only the hypotheses still in contention take the Adam stage: the best one, and the best at
+    another pose where it ends within ``adam_stage_margin`` of it (the others are pruned); False:
+    every survivor takes it."""
     adam_stage_iterations: int = 100
     """Adam steps of that stage."""
     adam_stage_lr: float = 0.05
@@ -216,6 +229,9 @@ class FitSettings:
     adam_stage_decay_after: int = 40
     adam_stage_samples: int = 1500
     """Samples of each of its steps."""
+    refine_iterations: int = 0
+    """Gauss–Newton: after the Adam stage, at most this many Levenberg–Marquardt iterations on
+    every survivor (the solve's last sample set) settle the code where the stage left it; 0: none."""
 
     def __post_init__(self) -> None:
         """Every mode field holds one of its values (a typo is an error here, not a silent default)."""

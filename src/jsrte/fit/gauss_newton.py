@@ -57,7 +57,7 @@ from jsrte.fit.optimize import (
     pruning_stages,
 )
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
-from jsrte.fit.polish import adam_stage, adam_stage_due, polish
+from jsrte.fit.polish import adam_stage, adam_stage_due, contenders, polish
 from jsrte.geometry.sim3 import rotation_from_paper
 from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.presets import FitSettings
@@ -309,6 +309,10 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
         pruned.update({int(survivors[i]): float(scores[i]) for i in range(len(p)) if i not in kept})
         batch.keep(keep.cpu())
         p, survivors = p[keep], survivors[keep.cpu().numpy()]
+    if settings.retrieval_start and prior is not None and prior.codes is not None and "latent" not in fixed:
+        p, n = retrieval_start(decoder, p, batch.base_rotation, problem_of(settings.retrieval_samples), batch,
+                               prior, settings.retrieval_start)
+        count("retrieval", n)
     problem = problem_of(settings.samples_per_iteration)
     free = free_columns(fixed, decoder.config.latent_size).to(device)
     base = batch.base_rotation
@@ -358,26 +362,8 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
         if not bool(moving.any()):
             break
         iterations = it + 1
-        rows = torch.nonzero(moving)[:, 0]
-        step, solved = damped_step(Linearization(lin.objective[rows], lin.hessian[rows], lin.gradient[rows]),
-                                   damping[rows])
-        trial = p[rows].clone()
-        trial[:, free] += step
-        trial[:, 0] = trial[:, 0].clamp(settings.scale_min, settings.scale_max)
-        new = linearize(decoder, trial, base[rows], problem, whitening, free)
-        count("survivors" if searched else "starts", len(rows) * len(problem.sdf))
-        finite = torch.isfinite(new.objective) & torch.isfinite(new.hessian).flatten(1).all(1) & \
-            torch.isfinite(new.gradient).all(1)
-        better = solved & finite & (new.objective < lin.objective[rows])
-        gain = (lin.objective[rows] - new.objective) / lin.objective[rows].abs().clamp(min=1e-12)
-        accepted = rows[better]
-        p[accepted] = trial[better]
-        lin.objective[accepted] = new.objective[better]
-        lin.hessian[accepted] = new.hessian[better]
-        lin.gradient[accepted] = new.gradient[better]
-        damping[rows] = torch.where(better, damping[rows] / 3.0, damping[rows] * 4.0)
-        done = (better & (gain < settings.tolerance)) | (damping[rows] > MAX_DAMPING)
-        moving[rows] = moving[rows] & ~done
+        count("survivors" if searched else "starts",
+              lm_iteration(decoder, p, base, lin, damping, moving, problem, whitening, free, settings))
     p, base, lin, damping, moving, survivors = _drop_failed(p, base, lin, damping, moving, survivors, failed,
                                                             batch)
     unpack_into(batch, p)
@@ -385,7 +371,11 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     if len(set(survivors.tolist())) < len(survivors):
         survivors, objective = _best_copies(batch, survivors, objective)
     if adam_stage_due(batch, objective, settings):
+        if settings.adam_stage_contenders_only:
+            survivors, objective = _contenders_only(batch, survivors, objective, pruned, settings.adam_stage_margin)
         count("adam stage", adam_stage(decoder, batch, problem_of, settings))
+        if settings.refine_iterations:
+            count("refine", _refine(decoder, batch, problem, whitening, free, settings))
     if settings.polish_iterations:
         count("polish", polish(decoder, batch, problem_of, settings))
     final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty,
@@ -393,6 +383,66 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     count("final losses", len(batch) * min(settings.eval_samples, len(sdf)))
     return Optimized(batch, final, survivors, pruned, iterations, sum(parts.values()), time.perf_counter() - start,
                      failed=failed, evaluation_parts=parts)
+
+
+def lm_iteration(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, lin: Linearization, damping: torch.Tensor,
+                 moving: torch.Tensor, problem: Problem, whitening: tuple[torch.Tensor, torch.Tensor] | None,
+                 free: torch.Tensor, settings: FitSettings) -> int:
+    """One damped step of every ``moving`` hypothesis, in place: p (H, 7 + d), ``lin`` and
+    ``damping`` (H,) take an accepted step's values; a rejected step raises the damping; a
+    hypothesis that gains under ``settings.tolerance`` or whose damping passes MAX_DAMPING stops
+    (``moving`` False). Returns the decoder evaluations."""
+    rows = torch.nonzero(moving)[:, 0]
+    step, solved = damped_step(Linearization(lin.objective[rows], lin.hessian[rows], lin.gradient[rows]),
+                               damping[rows])
+    trial = p[rows].clone()
+    trial[:, free] += step
+    trial[:, 0] = trial[:, 0].clamp(settings.scale_min, settings.scale_max)
+    new = linearize(decoder, trial, base[rows], problem, whitening, free)
+    finite = torch.isfinite(new.objective) & torch.isfinite(new.hessian).flatten(1).all(1) & \
+        torch.isfinite(new.gradient).all(1)
+    better = solved & finite & (new.objective < lin.objective[rows])
+    gain = (lin.objective[rows] - new.objective) / lin.objective[rows].abs().clamp(min=1e-12)
+    accepted = rows[better]
+    p[accepted] = trial[better]
+    lin.objective[accepted] = new.objective[better]
+    lin.hessian[accepted] = new.hessian[better]
+    lin.gradient[accepted] = new.gradient[better]
+    damping[rows] = torch.where(better, damping[rows] / 3.0, damping[rows] * 4.0)
+    done = (better & (gain < settings.tolerance)) | (damping[rows] > MAX_DAMPING)
+    moving[rows] = moving[rows] & ~done
+    return len(rows) * len(problem.sdf)
+
+
+def _refine(decoder: Decoder, batch: HypothesisBatch, problem: Problem,
+            whitening: tuple[torch.Tensor, torch.Tensor] | None, free: torch.Tensor, settings: FitSettings) -> int:
+    """At most ``settings.refine_iterations`` Levenberg–Marquardt iterations on ``batch`` (in
+    place) on ``problem``'s samples, after the Adam stage; a hypothesis whose system turns
+    non-finite keeps the Adam stage's parameters. Returns the decoder evaluations."""
+    p, base = pack(batch), batch.base_rotation
+    lin = linearize(decoder, p, base, problem, whitening, free)
+    evaluations = len(p) * len(problem.sdf)
+    finite = torch.isfinite(lin.objective) & torch.isfinite(lin.hessian).flatten(1).all(1) & \
+        torch.isfinite(lin.gradient).all(1)
+    damping = torch.full((len(p),), settings.damping, dtype=torch.float64, device=p.device)
+    moving = finite.clone()
+    for _ in range(settings.refine_iterations):
+        if not bool(moving.any()):
+            break
+        evaluations += lm_iteration(decoder, p, base, lin, damping, moving, problem, whitening, free, settings)
+    unpack_into(batch, p)
+    return evaluations
+
+
+def _contenders_only(batch: HypothesisBatch, survivors: np.ndarray, objective: torch.Tensor, pruned: dict[int, float],
+                     margin: float) -> tuple[np.ndarray, torch.Tensor]:
+    """Keep only the hypotheses of ``batch`` still in contention (fit.polish's :func:`contenders`):
+    the best, and the best at another pose within ``margin`` of it; the others go to ``pruned``
+    with their objective. Returns the kept start indices and objectives."""
+    keep = contenders(batch, objective, margin)
+    pruned.update({int(survivors[h]): float(objective[h]) for h in range(len(survivors)) if h not in keep})
+    batch.keep(torch.as_tensor(keep))
+    return survivors[keep], objective[torch.as_tensor(keep, device=objective.device)]
 
 
 def _drop_failed(p: torch.Tensor, base: torch.Tensor, lin: Linearization, damping: torch.Tensor,
@@ -429,9 +479,11 @@ def _translation_search(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, p
                         settings: FitSettings) -> tuple[torch.Tensor, int]:
     """Move every hypothesis of p (H, 7 + d) to the translation of lowest objective among
     :func:`translation_offsets` (times s0) across its own up axis (the second column of its
-    rotation), its code and the rest of its pose held; forward passes on ``yaw_screen_samples``
-    samples. Returns p and the evaluations spent."""
-    screen = problem_of(settings.yaw_screen_samples)
+    rotation), its code and the rest of its pose held; forward passes on
+    ``translation_search_samples`` samples (unset: ``yaw_screen_samples``). Returns p and the
+    evaluations spent."""
+    screen = problem_of(settings.yaw_screen_samples if settings.translation_search_samples is None
+                        else settings.translation_search_samples)
     offsets = translation_offsets(settings).to(p.device) * problem_of.s0
     rot, _ = _rotations(p[:, 1:4], base)
     up = rot[:, :, 1]
@@ -450,26 +502,55 @@ def _translation_search(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, p
     return out, len(p) * len(offsets) * len(screen.sdf)
 
 
+def whitened_codes(batch: HypothesisBatch, prior: LatentPrior, device: torch.device) -> torch.Tensor:
+    """The model's training codes (n, d) in ``batch``'s whitened space: w = L⁻¹(z − μ)."""
+    codes = torch.as_tensor(prior.codes, dtype=torch.float64, device=device)
+    return torch.linalg.solve_triangular(batch.prior_factor, (codes - batch.prior_mean).T, upper=False).T
+
+
+def score_codes(decoder: Decoder, p_row: torch.Tensor, base_row: torch.Tensor, codes: torch.Tensor,
+                screen: Problem, whitening: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
+    """Forward passes only: the objective (n,) of the hypothesis p_row (7 + d,) (base rotation
+    base_row (3, 3)) with its code replaced by each of ``codes`` (n, d), on ``screen``'s samples;
+    a non-finite objective scores inf."""
+    trial = p_row.repeat(len(codes), 1)
+    trial[:, N_POSE:] = codes
+    with torch.no_grad():
+        scores = linearize(decoder, trial, base_row.expand(len(codes), 3, 3), screen, whitening, None).objective
+    return torch.where(torch.isfinite(scores), scores, torch.full_like(scores, float("inf")))
+
+
+def retrieval_start(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, screen: Problem,
+                    batch: HypothesisBatch, prior: LatentPrior, k: int) -> tuple[torch.Tensor, int]:
+    """Start every hypothesis of p (H, 7 + d) from the retrieved code: the mean (whitened) of the
+    ``k`` training codes with the lowest objective at its start pose on ``screen``'s samples
+    (forward passes only; ``k`` = 1: the best training code itself). Returns p and the
+    evaluations spent."""
+    codes = whitened_codes(batch, prior, p.device)
+    whitening = (batch.prior_mean, batch.prior_factor)
+    out = p.clone()
+    for h in range(len(p)):
+        scores = score_codes(decoder, p[h], base[h], codes, screen, whitening)
+        out[h, N_POSE:] = codes[torch.argsort(scores)[: min(k, len(codes))]].mean(dim=0)
+    return out, len(p) * len(codes) * len(screen.sdf)
+
+
 def _code_restarts(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, survivors: np.ndarray,
                    batch: HypothesisBatch, problem_of: ProblemDrawer, prior: LatentPrior,
                    settings: FitSettings) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, int]:
     """Every hypothesis of p (H, 7 + d) followed by ``settings.code_starts`` copies at its pose
     whose whitened codes are the training codes with the lowest objective there (forward passes
     on ``yaw_screen_samples`` samples); returns p, base, survivors and the evaluations spent."""
-    codes = torch.as_tensor(prior.codes, dtype=torch.float64, device=p.device)
-    whitened = torch.linalg.solve_triangular(batch.prior_factor, (codes - batch.prior_mean).T, upper=False).T
+    whitened = whitened_codes(batch, prior, p.device)
     screen = problem_of(settings.yaw_screen_samples if settings.code_screen_samples is None
                         else settings.code_screen_samples)
     n, k = len(whitened), min(settings.code_starts, len(whitened))
     rows, bases = [], []
     for h in range(len(p)):
-        trial = p[h].repeat(n, 1)
-        trial[:, N_POSE:] = whitened
-        with torch.no_grad():
-            scores = linearize(decoder, trial, base[h].expand(n, 3, 3), screen, (batch.prior_mean,
-                                                                                  batch.prior_factor), None).objective
-        best = torch.argsort(torch.where(torch.isfinite(scores), scores, torch.full_like(scores, float("inf"))))[:k]
-        rows += [p[h][None], trial[best]]
+        scores = score_codes(decoder, p[h], base[h], whitened, screen, (batch.prior_mean, batch.prior_factor))
+        trial = p[h].repeat(k, 1)
+        trial[:, N_POSE:] = whitened[torch.argsort(scores)[:k]]
+        rows += [p[h][None], trial]
         bases += [base[h][None]] * (1 + k)
     index = torch.arange(len(p)).repeat_interleave(1 + k)
     batch.keep(index)

@@ -59,15 +59,23 @@ def near_tie(batch: HypothesisBatch, objective: torch.Tensor, margin: float) -> 
     """Whether the best hypothesis at another pose than the best one (by ``objective`` (H,), lower
     is better; fit.quality's :func:`other_pose`) is within ``margin`` of it, relative:
     (theirs − best) / best < margin."""
+    return len(contenders(batch, objective, margin)) > 1
+
+
+def contenders(batch: HypothesisBatch, objective: torch.Tensor, margin: float) -> list[int]:
+    """The rows of ``batch`` still in contention: the best by ``objective`` (H,), and the best at
+    another pose (fit.quality's :func:`other_pose`) where it is within ``margin`` of the best,
+    relative ((theirs − best) / best < margin)."""
     values = objective.detach().cpu().numpy().astype(np.float64)
     order = np.argsort(values)
     best = batch.transform(int(order[0]))
     if not np.isfinite(values[order[0]]) or values[order[0]] <= 0:
-        return False
+        return [int(order[0])]
     for h in order[1:]:
         if other_pose(batch.transform(int(h)), best):
-            return bool((values[h] - values[order[0]]) / values[order[0]] < margin)
-    return False
+            near = (values[h] - values[order[0]]) / values[order[0]] < margin
+            return [int(order[0]), int(h)] if near else [int(order[0])]
+    return [int(order[0])]
 
 
 def adam_stage_due(batch: HypothesisBatch, objective: torch.Tensor, settings: FitSettings) -> bool:

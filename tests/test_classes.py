@@ -37,9 +37,11 @@ def _sphere_points(rng: np.random.Generator, n: int, centre: np.ndarray, radius:
     return centre + radius * v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def _fit(scale: float) -> FitResult:
+def _fit(scale: float, code: float) -> FitResult:
+    """A fit of scale ``scale`` centred at CENTRE whose code's ratio is ``code``."""
     return FitResult("jsrte", Sim3(scale, np.eye(3), CENTRE), np.zeros(2, np.float32), None, 0.0, {},
-                     timing={"total": 1.0}, info={"decoder_evaluations": 100})
+                     timing={"total": 1.0}, info={"decoder_evaluations": 100},
+                     quality={"latent_mahalanobis_ratio": code})
 
 
 def test_contending_classes_are_the_best_and_those_within_the_margin():
@@ -52,53 +54,68 @@ def test_contending_classes_are_the_best_and_those_within_the_margin():
     assert contending({"bed": None, "sofa": None}, ScreenSettings()) == []
 
 
-def test_decide_keeps_the_lowest_final_score_and_records_the_comparison():
-    terms = {"sofa": {"residual": 0.020, "freespace": 0.004, "unexplained": 0.10},
-             "bed": {"residual": 0.015, "freespace": 0.002, "unexplained": 0.02}}
-    weights = {"residual": 1.0, "freespace": 1.0, "unexplained": 0.0}
-    chosen, record = decide(terms, weights)
-    assert chosen == "bed" and record["compared"] == ["sofa", "bed"]
-    assert record["scores"] == {"sofa": 0.024, "bed": 0.017} and record["margin"] == pytest.approx(0.007)
-    assert record["terms"]["sofa"]["unexplained"] == 0.1
-    # the free space alone reverses it
-    chosen, _ = decide(terms | {"bed": terms["bed"] | {"freespace": 0.02}}, weights)
-    assert chosen == "sofa"
+def test_the_final_score_adds_the_codes_typicality_to_the_class_score():
+    settings = ScreenSettings(final_code_weight=0.02)
+    screen = {"bed": 0.030, "sofa": 0.032}
+    chosen, scores = decide(screen, {"bed": 1.5, "sofa": 0.6}, settings)  # the bed model stretched far
+    assert chosen == "sofa" and scores == pytest.approx({"bed": 0.060, "sofa": 0.044})
+    chosen, _ = decide(screen, {"bed": 0.7, "sofa": 0.7}, settings)  # alike codes: the screen decides
+    assert chosen == "bed"
+    chosen, _ = decide(screen, {"bed": 0.9, "sofa": 0.85}, settings)  # 0.002 of the screen outweighs 0.05
+    assert chosen == "bed"
 
 
-def test_final_fits_choose_the_class_the_screen_ranked_second(monkeypatch):
-    """The screen ranks "ball" (a sphere model) 0.002 ahead of "pair" (ball and blob) on a
-    ball-and-blob cluster, so the screen alone would take "ball". Fitted in full, the ball's fit
-    leaves the blob's 30% of the points unexplained and the pair's fit explains them all: the
-    final fits choose "pair", return its fit, and fit.json's ``class`` records the comparison."""
-    fit_module = importlib.import_module("jsrte.fit")
+def _ball_and_blob() -> tuple[SdfQuery, dict[str, DeepSdfModel]]:
     rng = np.random.default_rng(0)
     points = np.concatenate([_sphere_points(rng, 700, CENTRE, 1.0),
                              _sphere_points(rng, 300, CENTRE + [1.5, 0.0, 0.0], 0.5)])
-    query = SdfQuery(points, np.zeros(len(points)), points)
     models = {"ball": DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "ball"}),
               "pair": DeepSdfModel(BallAndBlob(), torch.zeros(1, 2), {"name": "pair"})}
-    fits = {"ball": _fit(2.0), "pair": _fit(2.0)}  # both exact on the ball
+    return SdfQuery(points, np.zeros(len(points)), points), models
+
+
+def test_final_terms_measure_each_fit_on_the_same_points():
+    query, models = _ball_and_blob()
+    settings = ScreenSettings()
+    pair = final_terms(models["pair"], _fit(2.0, 0.5), {"pair": query, "ball": query}, settings)
+    assert pair["residual"] < 1e-6 and pair["unexplained"] == 0.0 and pair["code"] == 0.5
+    ball = final_terms(models["ball"], _fit(2.0, 0.5), {"ball": query}, settings)
+    assert ball["residual"] > 0.02 and 0.25 < ball["unexplained"] <= 0.3  # the blob, less where it touches
+
+
+@pytest.mark.parametrize("ball_code", [0.6, 1.6])
+def test_the_runner_up_is_fitted_only_where_the_best_fit_needs_an_atypical_code(monkeypatch, ball_code):
+    """The screen ranks "ball" 0.002 ahead of "pair": the screen alone takes "ball". Its full fit
+    comes first; with a typical code (0.6) it stands and nothing else is fitted. With an atypical
+    one (1.6, above ``final_code_max``) "pair" is fitted too, and its typical code (0.5) makes it
+    the class: fit.json's ``class`` records what was compared."""
+    fit_module = importlib.import_module("jsrte.fit")
+    query, models = _ball_and_blob()
+    fits = {"ball": _fit(2.0, ball_code), "pair": _fit(2.0, 0.5)}
     fitted = []
 
     def fit_recorded(model, query, options, *, class_choice=None, progress=False):
-        name = model.meta["name"]
-        fitted.append(name)
-        return fits[name]
+        fitted.append(model.meta["name"])
+        return fits[model.meta["name"]]
 
     monkeypatch.setattr(fit_module, "fit_recorded", fit_recorded)
     screen_record = {"chosen": "ball", "chosen_by": "fit", "scores": {"ball": 0.030, "pair": 0.032},
                      "margin": 0.002, "refitted": []}
-    settings = ScreenSettings()
-    assert final_terms(models["pair"], fits["pair"], {"pair": query}, settings)["residual"] < 1e-6
-    ball = final_terms(models["ball"], fits["ball"], {"ball": query}, settings)
-    assert ball["residual"] > 0.02 and 0.25 < ball["unexplained"] <= 0.3  # the blob, less the points touching the ball
+    settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02)
     options = type("Options", (), {"seed": 0})()
     result = fit_contenders({"ball": query, "pair": query}, models, options, screen_record, settings=settings)
-    assert fitted == ["ball", "pair"] and result is fits["pair"]
     record = json.loads(json.dumps(result.to_json()))["class"]
-    assert record["chosen"] == "pair" and record["chosen_by"] == "final fit"
     assert record["scores"] == screen_record["scores"]  # the screen's record is kept
     final = record["final"]
-    assert final["compared"] == ["ball", "pair"] and final["margin"] > 0.02
-    assert final["scores"]["pair"] < 1e-5 < final["scores"]["ball"]
+    if ball_code < 0.9:
+        assert fitted == ["ball"] and result is fits["ball"]
+        assert record["chosen"] == "ball" and record["chosen_by"] == "fit"
+        assert final["compared"] == ["ball"] and final["margin"] is None
+        return
+    assert fitted == ["ball", "pair"] and result is fits["pair"]
+    assert record["chosen"] == "pair" and record["chosen_by"] == "final fit"
+    assert final["compared"] == ["ball", "pair"]
+    assert final["scores"] == pytest.approx({"ball": 0.030 + 0.02 * 1.6, "pair": 0.032 + 0.02 * 0.5})
+    assert final["margin"] == pytest.approx(0.02 * 1.1 - 0.002, abs=1e-5)
+    assert final["terms"]["ball"]["unexplained"] > 0.25 and final["terms"]["pair"]["residual"] < 1e-5
     assert final["decoder_evaluations"] == {"ball": 100, "pair": 100}

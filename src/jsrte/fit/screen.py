@@ -103,12 +103,19 @@ class ScreenSettings:
     whole at a weak neck (its ``neck``) is cut there, and its parts are screened and judged
     against it (:func:`split_or_whole`): on the tuning data a chair and a box 1-8 cm apart
     scored 0.074-0.1 as one candidate, a chair alone 0.01-0.035, a clean bed 0.009-0.072."""
-    final_margin: float = 0.03
+    final_margin: float = 0.035
     """Where other classes score at most the best class's plus this after the screen (and the
-    refits), the best ``final_classes`` of them are each fitted in full, and their final fits
-    decide (``jsrte.fit.classes``; 0: never)."""
+    refits), the class is settled by full fits (``jsrte.fit.classes``; 0: never): the best
+    class is fitted in full, and where its code is atypical the next best too."""
     final_classes: int = 2
     """At most this many classes are fitted in full (the best by class score first)."""
+    final_code_max: float = 0.9
+    """The best class's full fit settles the class when its code's ratio
+    (``latent_mahalanobis_ratio``) is at most this; above it, the next best is fitted in full
+    too (the confidence flag's own threshold for an atypical code)."""
+    final_code_weight: float = 0.02
+    """Weight of the code's ratio in the final score of a fully fitted class (its class score
+    plus this times the ratio)."""
     slab_m: float = 0.08
     """A candidate thinner than this (m) across its thinnest direction (:func:`thickness`) is a
     slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs

@@ -128,6 +128,9 @@ def _report(result, out: Path) -> None:  # noqa: ANN001
     if "class" in result.info:
         choice = result.info["class"]
         margin = "" if choice["margin"] is None else f" (margin {choice['margin']:.4f} over the next)"
+        final = choice.get("final")
+        if final is not None and len(final["compared"]) > 1:
+            margin = f" (by the final fits of {', '.join(final['compared'])}: margin {final['margin']:.4f})"
         typer.echo(f"class {choice['chosen']}{margin}")
     typer.echo(f"winner by {result.criterion['name']}: {result.criterion['value']:.4f}; "
                f"time {result.timing['total']:.1f} s")

@@ -46,7 +46,13 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
         models = load_models(model, options.device)
         is_scan = not isinstance(query, SdfQuery) and input_kind(query) == "scan"
     if is_scan and options.at is None:
-        sdf_query, loaded, class_choice = _choose_in_scan(query, models, options)
+        choice = _choose_in_scan(query, models, options)
+        if len(choice.objects) > 1:
+            from jsrte.fit.classes import fit_contenders
+
+            return fit_contenders(choice.objects, models, options, choice.class_json(), progress=progress)
+        sdf_query, loaded = choice.query, choice.model
+        class_choice = None if len(models) == 1 else choice.class_json()
     else:
         if options.at is not None and len(models) > 1:
             from jsrte.errors import JsrteError
@@ -130,11 +136,10 @@ def load_models(model: str | Path | DeepSdfModel | list, device: str | None) -> 
     return models
 
 
-def _choose_in_scan(query: str | Path, models: dict,
-                    options: FitOptions) -> tuple[SdfQuery, DeepSdfModel, dict | None]:
-    """The scan's object (and class, with several models) chosen by quick fits
-    (``jsrte.fit.screen.choose_in_scan``): its query, its model and the class record (None
-    with one model)."""
+def _choose_in_scan(query: str | Path, models: dict, options: FitOptions) -> object:
+    """The scan's object (and class, with several models) chosen by quick fits: the
+    ``jsrte.fit.screen.Choice`` (its ``objects``: the contending classes' objects, more than one
+    where the classes' final fits decide)."""
     from jsrte.fit.query import class_shape, scan_candidates
     from jsrte.fit.screen import choose_in_scan
     from jsrte.timing import stage
@@ -150,8 +155,7 @@ def _choose_in_scan(query: str | Path, models: dict,
                                    settings=settings.scan_sdf, units_check=options.units_check,
                                    shape=class_shape(model))
 
-    choice = choose_in_scan(query, models, segment=segment, seed=options.seed, final_rng=rng)
-    return choice.query, choice.model, None if single else choice.class_json()
+    return choose_in_scan(query, models, segment=segment, seed=options.seed, final_rng=rng)
 
 
 def _array(value: tuple | None) -> np.ndarray | None:

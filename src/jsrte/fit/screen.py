@@ -103,6 +103,19 @@ class ScreenSettings:
     whole at a weak neck (its ``neck``) is cut there, and its parts are screened and judged
     against it (:func:`split_or_whole`): on the tuning data a chair and a box 1-8 cm apart
     scored 0.074-0.1 as one candidate, a chair alone 0.01-0.035, a clean bed 0.009-0.072."""
+    final_margin: float = 0.035
+    """Where other classes score at most the best class's plus this after the screen (and the
+    refits), the class is settled by full fits (``jsrte.fit.classes``; 0: never): the best
+    class is fitted in full, and where its code is atypical the next best too."""
+    final_classes: int = 2
+    """At most this many classes are fitted in full (the best by class score first)."""
+    final_code_max: float = 0.9
+    """The best class's full fit settles the class when its code's ratio
+    (``latent_mahalanobis_ratio``) is at most this; above it, the next best is fitted in full
+    too (the confidence flag's own threshold for an atypical code)."""
+    final_code_weight: float = 0.02
+    """Weight of the code's ratio in the final score of a fully fitted class (its class score
+    plus this times the ratio)."""
     slab_m: float = 0.08
     """A candidate thinner than this (m) across its thinnest direction (:func:`thickness`) is a
     slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs
@@ -207,6 +220,8 @@ class Choice:
     classes : per model name, its class score (None when it had no candidate): its best screen
         score, with several models its best on a whole (:func:`class_scores`)
     refits : the contended wholes fitted again (:func:`class_scores`)
+    objects : per contending class (:func:`contending`; the chosen first), the object its model
+        chose; more than one: the classes' final fits decide (``jsrte.fit.classes``)
     """
 
     query: SdfQuery
@@ -214,6 +229,7 @@ class Choice:
     screened: list[Screened]
     classes: dict[str, float | None]
     refits: list[Screened] = field(default_factory=list)
+    objects: dict[str, SdfQuery] = field(default_factory=dict)
 
     def class_json(self) -> dict[str, Any]:
         """fit.json's record of the class choice: every class's score and the margin."""
@@ -271,26 +287,48 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
             classes, refits = class_scores(per_model, screened, queries, models, settings, seed)
     else:
         classes = {name: min((s.score for s in screened if s.model == name), default=None) for name in models}
-    winner = min((name for name in models if classes[name] is not None), key=classes.__getitem__)
-    own = _with_refits([s for s in screened if s.model == winner], [r for r in refits if r.model == winner])
-    covered = _covered(per_model[winner], own, models[winner], settings, seed)
+    ranked = sorted((name for name in models if classes[name] is not None), key=classes.__getitem__)
+    contenders = contending(classes, settings) if len(models) > 1 else ranked[:1]
+    objects = {name: _object_of(name, per_model[name], screened, refits, models[name], settings, seed,
+                                final_rng if len(models) == 1 else None) for name in contenders}
+    winner = ranked[0]
+    return Choice(objects[winner], models[winner], screened, classes, refits, objects)
+
+
+def contending(classes: dict[str, float | None], settings: ScreenSettings) -> list[str]:
+    """The classes whose final fits decide (:data:`ScreenSettings.final_margin`): the best by class
+    score first, then up to ``final_classes`` - 1 others scoring within ``final_margin`` of it."""
+    ranked = sorted((name for name, v in classes.items() if v is not None), key=classes.__getitem__)
+    if not ranked or settings.final_margin <= 0:
+        return ranked[:1]
+    best = classes[ranked[0]]
+    return ranked[:1] + [n for n in ranked[1:settings.final_classes] if classes[n] <= best + settings.final_margin]
+
+
+def _object_of(name: str, cands: object, screened: list[Screened], refits: list[Screened], model: DeepSdfModel,
+               settings: ScreenSettings, seed: int, final_rng: np.random.Generator | None) -> SdfQuery:
+    """The object model ``name`` chose in its segmentation ``cands``: its best candidate once each
+    split is judged (:func:`split_or_whole`); its query records the segmentation with every
+    screened candidate's score and ``chosen_by: "fit"`` (``final_rng``: with one model, the
+    query of the class rank's own choice is drawn again with it, as without a screen)."""
+    own = _with_refits([s for s in screened if s.model == name], [r for r in refits if r.model == name])
+    covered = _covered(cands, own, model, settings, seed)
     scores = {s.candidate: s.score for s in own}
-    thin = slabs(per_model[winner], settings.slab_m)
+    thin = slabs(cands, settings.slab_m)
     eligible = [s for s in own if s.candidate not in covered]
     best = min([s for s in eligible if s.candidate not in thin] or eligible,
-               key=lambda s: _best_within(per_model[winner].segmentation.candidates, scores, s.candidate))
+               key=lambda s: _best_within(cands.segmentation.candidates, scores, s.candidate))
     for s in own:
         record = s.to_json() | ({"covered": True} if s.candidate in covered else {})
-        per_model[winner].segmentation.candidates[s.candidate].summary["screen"] = record
-    chosen = per_model[best.model]
-    seg = chosen.segmentation
+        cands.segmentation.candidates[s.candidate].summary["screen"] = record
+    seg = cands.segmentation
     by_class = seg.chosen
     seg.chosen, seg.index, seg.how = best.candidate, seg.candidates[best.candidate].index, "fit"
-    query = best.query
-    if len(models) == 1 and best.candidate == by_class and final_rng is not None:
-        query = chosen.query(best.candidate, rng=final_rng)  # the same samples as without a screen
+    query = replace(best.query, info=dict(best.query.info))  # another model may share the candidate's query
+    if best.candidate == by_class and final_rng is not None:
+        query = cands.query(best.candidate, rng=final_rng)  # the same samples as without a screen
     query.info["segmentation"] = seg.to_json()
-    return Choice(query, models[best.model], screened, classes, refits)
+    return query
 
 
 def class_scores(per_model: dict[str, object], screened: list[Screened], queries: dict[str, SdfQuery],

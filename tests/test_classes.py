@@ -1,0 +1,121 @@
+"""Classes left close by the screen are decided by their final fits (jsrte.fit.classes)."""
+
+from __future__ import annotations
+
+import importlib
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from analytic import SphereDecoder
+from jsrte.fit.classes import decide, final_terms, fit_contenders
+from jsrte.fit.query import SdfQuery
+from jsrte.fit.screen import ScreenSettings, contending
+from jsrte.geometry.sim3 import Sim3
+from jsrte.model.checkpoint import DeepSdfModel
+from jsrte.result import FitResult
+
+CENTRE = np.array([2.0, 0.5, -1.0])
+
+
+class BallAndBlob(torch.nn.Module):
+    """A ball of radius 0.5 at the origin and one of 0.25 beside it (+x): the fitted "pair" class."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.config = SphereDecoder().config
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        far = (points - torch.tensor([0.75, 0.0, 0.0], dtype=points.dtype)).norm(dim=-1) - 0.25
+        return torch.minimum(points.norm(dim=-1) - 0.5, far)
+
+
+def _sphere_points(rng: np.random.Generator, n: int, centre: np.ndarray, radius: float) -> np.ndarray:
+    v = rng.normal(size=(n, 3))
+    return centre + radius * v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _fit(scale: float, code: float) -> FitResult:
+    """A fit of scale ``scale`` centred at CENTRE whose code's ratio is ``code``."""
+    return FitResult("jsrte", Sim3(scale, np.eye(3), CENTRE), np.zeros(2, np.float32), None, 0.0, {},
+                     timing={"total": 1.0}, info={"decoder_evaluations": 100},
+                     quality={"latent_mahalanobis_ratio": code})
+
+
+def test_contending_classes_are_the_best_and_those_within_the_margin():
+    classes = {"bed": 0.030, "chair": None, "sofa": 0.035, "table": 0.050}
+    assert contending(classes, ScreenSettings(final_margin=0.01)) == ["bed", "sofa"]
+    assert contending(classes, ScreenSettings(final_margin=0.004)) == ["bed"]
+    assert contending(classes, ScreenSettings(final_margin=0.0)) == ["bed"]
+    assert contending(classes, ScreenSettings(final_margin=0.03)) == ["bed", "sofa"]  # at most two
+    assert contending(classes, ScreenSettings(final_margin=0.03, final_classes=3)) == ["bed", "sofa", "table"]
+    assert contending({"bed": None, "sofa": None}, ScreenSettings()) == []
+
+
+def test_the_final_score_adds_the_codes_typicality_to_the_class_score():
+    settings = ScreenSettings(final_code_weight=0.02)
+    screen = {"bed": 0.030, "sofa": 0.032}
+    chosen, scores = decide(screen, {"bed": 1.5, "sofa": 0.6}, settings)  # the bed model stretched far
+    assert chosen == "sofa" and scores == pytest.approx({"bed": 0.060, "sofa": 0.044})
+    chosen, _ = decide(screen, {"bed": 0.7, "sofa": 0.7}, settings)  # alike codes: the screen decides
+    assert chosen == "bed"
+    chosen, _ = decide(screen, {"bed": 0.9, "sofa": 0.85}, settings)  # 0.002 of the screen outweighs 0.05
+    assert chosen == "bed"
+
+
+def _ball_and_blob() -> tuple[SdfQuery, dict[str, DeepSdfModel]]:
+    rng = np.random.default_rng(0)
+    points = np.concatenate([_sphere_points(rng, 700, CENTRE, 1.0),
+                             _sphere_points(rng, 300, CENTRE + [1.5, 0.0, 0.0], 0.5)])
+    models = {"ball": DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "ball"}),
+              "pair": DeepSdfModel(BallAndBlob(), torch.zeros(1, 2), {"name": "pair"})}
+    return SdfQuery(points, np.zeros(len(points)), points), models
+
+
+def test_final_terms_measure_each_fit_on_the_same_points():
+    query, models = _ball_and_blob()
+    settings = ScreenSettings()
+    pair = final_terms(models["pair"], _fit(2.0, 0.5), {"pair": query, "ball": query}, settings)
+    assert pair["residual"] < 1e-6 and pair["unexplained"] == 0.0 and pair["code"] == 0.5
+    ball = final_terms(models["ball"], _fit(2.0, 0.5), {"ball": query}, settings)
+    assert ball["residual"] > 0.02 and 0.25 < ball["unexplained"] <= 0.3  # the blob, less where it touches
+
+
+@pytest.mark.parametrize("ball_code", [0.6, 1.6])
+def test_the_runner_up_is_fitted_only_where_the_best_fit_needs_an_atypical_code(monkeypatch, ball_code):
+    """The screen ranks "ball" 0.002 ahead of "pair": the screen alone takes "ball". Its full fit
+    comes first; with a typical code (0.6) it stands and nothing else is fitted. With an atypical
+    one (1.6, above ``final_code_max``) "pair" is fitted too, and its typical code (0.5) makes it
+    the class: fit.json's ``class`` records what was compared."""
+    fit_module = importlib.import_module("jsrte.fit")
+    query, models = _ball_and_blob()
+    fits = {"ball": _fit(2.0, ball_code), "pair": _fit(2.0, 0.5)}
+    fitted = []
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False):
+        fitted.append(model.meta["name"])
+        return fits[model.meta["name"]]
+
+    monkeypatch.setattr(fit_module, "fit_recorded", fit_recorded)
+    screen_record = {"chosen": "ball", "chosen_by": "fit", "scores": {"ball": 0.030, "pair": 0.032},
+                     "margin": 0.002, "refitted": []}
+    settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02)
+    options = type("Options", (), {"seed": 0})()
+    result = fit_contenders({"ball": query, "pair": query}, models, options, screen_record, settings=settings)
+    record = json.loads(json.dumps(result.to_json()))["class"]
+    assert record["scores"] == screen_record["scores"]  # the screen's record is kept
+    final = record["final"]
+    if ball_code < 0.9:
+        assert fitted == ["ball"] and result is fits["ball"]
+        assert record["chosen"] == "ball" and record["chosen_by"] == "fit"
+        assert final["compared"] == ["ball"] and final["margin"] is None
+        return
+    assert fitted == ["ball", "pair"] and result is fits["pair"]
+    assert record["chosen"] == "pair" and record["chosen_by"] == "final fit"
+    assert final["compared"] == ["ball", "pair"]
+    assert final["scores"] == pytest.approx({"ball": 0.030 + 0.02 * 1.6, "pair": 0.032 + 0.02 * 0.5})
+    assert final["margin"] == pytest.approx(0.02 * 1.1 - 0.002, abs=1e-5)
+    assert final["terms"]["ball"]["unexplained"] > 0.25 and final["terms"]["pair"]["residual"] < 1e-5
+    assert final["decoder_evaluations"] == {"ball": 100, "pair": 100}

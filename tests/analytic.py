@@ -87,6 +87,19 @@ class SphereDecoder(nn.Module):
         return points.norm(dim=-1) - (self.r0 + codes[:, 0] + codes[:, 1])
 
 
+class BallAndBlobDecoder(nn.Module):
+    """A ball of radius 0.5 at the origin and one of 0.25 beside it (+x, centre 0.75): a two-piece
+    "pair" class for class-choice tests (code ignored)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.config = SphereDecoder().config
+
+    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        far = (points - torch.tensor([0.75, 0.0, 0.0], dtype=points.dtype)).norm(dim=-1) - 0.25
+        return torch.minimum(points.norm(dim=-1) - 0.5, far)
+
+
 def octahedron_model(bias: float = -0.5, name: str = "octa", **meta):
     """A hand-set decoder: f(x, z) = tanh(|x|_1 + bias + 0.2 z_0), an octahedron of radius
     -bias - 0.2 z_0 (canonical units) that the latent visibly changes; ``meta`` adds to its metadata."""

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from analytic import SphereDecoder
+from analytic import BallAndBlobDecoder, SphereDecoder
 from jsrte.fit.classes import decide, final_terms, fit_contenders
 from jsrte.fit.query import SdfQuery
 from jsrte.fit.screen import ScreenSettings, contending
@@ -18,18 +18,6 @@ from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.result import FitResult
 
 CENTRE = np.array([2.0, 0.5, -1.0])
-
-
-class BallAndBlob(torch.nn.Module):
-    """A ball of radius 0.5 at the origin and one of 0.25 beside it (+x): the fitted "pair" class."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.config = SphereDecoder().config
-
-    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
-        far = (points - torch.tensor([0.75, 0.0, 0.0], dtype=points.dtype)).norm(dim=-1) - 0.25
-        return torch.minimum(points.norm(dim=-1) - 0.5, far)
 
 
 def _sphere_points(rng: np.random.Generator, n: int, centre: np.ndarray, radius: float) -> np.ndarray:
@@ -70,7 +58,7 @@ def _ball_and_blob() -> tuple[SdfQuery, dict[str, DeepSdfModel]]:
     points = np.concatenate([_sphere_points(rng, 700, CENTRE, 1.0),
                              _sphere_points(rng, 300, CENTRE + [1.5, 0.0, 0.0], 0.5)])
     models = {"ball": DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "ball"}),
-              "pair": DeepSdfModel(BallAndBlob(), torch.zeros(1, 2), {"name": "pair"})}
+              "pair": DeepSdfModel(BallAndBlobDecoder(), torch.zeros(1, 2), {"name": "pair"})}
     return SdfQuery(points, np.zeros(len(points)), points), models
 
 

@@ -286,21 +286,12 @@ def test_a_class_that_explains_only_part_of_a_whole_pays_for_the_rest():
     1% too large. On its part the first scores lower; judged on the whole, the second wins."""
     import torch
 
-    from analytic import SphereDecoder
+    from analytic import BallAndBlobDecoder, SphereDecoder
     from jsrte.fit.query import SdfQuery
     from jsrte.fit.screen import Screened, ScreenSettings, _points_key, class_scores, screen_score, screen_terms
     from jsrte.geometry.sim3 import Sim3
     from jsrte.model.checkpoint import DeepSdfModel
     from jsrte.result import FitResult
-
-    class TwoBalls(torch.nn.Module):
-        def __init__(self) -> None:
-            super().__init__()
-            self.config = SphereDecoder().config
-
-        def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
-            far = (points - torch.tensor([0.75, 0.0, 0.0], dtype=points.dtype)).norm(dim=-1) - 0.25
-            return torch.minimum(points.norm(dim=-1) - 0.5, far)
 
     rng = np.random.default_rng(0)
     centre = np.array([2.0, 0.5, -1.0])
@@ -309,7 +300,7 @@ def test_a_class_that_explains_only_part_of_a_whole_pays_for_the_rest():
     pieces = {0: np.concatenate([ball, blob]), 1: ball, 2: blob}
     queries = {_points_key(cands, k): SdfQuery(p, np.zeros(len(p)), p) for k, p in pieces.items()}
     models = {"ball": DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "ball"}),
-              "pair": DeepSdfModel(TwoBalls(), torch.zeros(1, 2), {"name": "pair"})}
+              "pair": DeepSdfModel(BallAndBlobDecoder(), torch.zeros(1, 2), {"name": "pair"})}
     settings = ScreenSettings(class_refit_margin=0.0)
 
     def screened(name: str, k: int, scale: float) -> Screened:

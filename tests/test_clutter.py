@@ -15,7 +15,7 @@ from jsrte.scans.io import ScanCloud
 from jsrte.scans.preprocess import camera_plane_normal, prepare_scan, segment_floor
 from jsrte.scans.scanner import ScannerSettings, scan_mesh
 from jsrte.scans.scene import FLOOR_LABEL, WALL_LABEL, SceneSettings, read_room_labels, scan_room, write_room
-from jsrte.scans.segment import ClassShape, find_walls, normalized_cut, segment_objects
+from jsrte.scans.segment import ClassShape, SegmentSettings, find_walls, normalized_cut, segment_objects
 from test_scans import stand_in_chair
 
 SMALL = SceneSettings(scanner=replace(SceneSettings().scanner, width=120, height=90), walls=(2, 2),
@@ -267,6 +267,32 @@ def test_a_split_keeps_its_whole_as_a_candidate():
     at = segment_objects(points, points[:, 1], up, rng=np.random.default_rng(0), shape=chair_shape(),
                          at=chair_points.mean(0))
     assert not at.candidates[at.chosen].parts and (at.index < len(chair_points)).mean() > 0.95
+
+
+def test_without_a_class_a_scene_cuts_weak_necks_and_keeps_the_whole():
+    """With no class to say where to cut, a plain segmentation leaves a scanned chair and the box
+    2-3 cm from it as one candidate; a scene's (``cut_max_without_class``) cuts them at the gap
+    and keeps the whole beside its parts, and a box alone stays whole."""
+    from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
+
+    settings = replace(SMALL, first_neighbour_gap_m=(0.02, 0.03), others=(1, 1))
+    chair = generate_shape("chair", shape_seed(EVAL_SET_SEED, 102)).mesh
+    room = scan_room(chair, rng=np.random.default_rng(2), settings=settings,
+                     others=[("box", box((0.4, 0.5, 0.5)), "box")])
+    height = room.scan.points @ room.scan.up - room.scan.floor_offset
+    pair = (room.labels != WALL_LABEL) & (room.labels != FLOOR_LABEL) & (height > 0.03)
+    points, heights, is_chair = room.scan.points[pair], height[pair], room.labels[pair] == 0
+    plain = segment_objects(points, heights, room.scan.up, rng=np.random.default_rng(0))
+    assert len(plain.candidates) == 1 and not plain.candidates[0].parts
+    scene = SegmentSettings(cut_max_without_class=0.008)
+    cut = segment_objects(points, heights, room.scan.up, rng=np.random.default_rng(0), settings=scene)
+    whole = cut.candidates[0]
+    assert np.array_equal(whole.index, plain.candidates[0].index) and whole.summary["cut"] <= 0.008
+    chair_share = sorted(float(is_chair[cut.candidates[p].index].mean()) for p in whole.parts)
+    assert len(whole.parts) == 2 and chair_share[0] < 0.15 and chair_share[1] > 0.95
+    crate = _surface_points(box((0.5, 0.6, 0.4)), 4000, 2)
+    alone = segment_objects(crate, crate[:, 1], room.scan.up, rng=np.random.default_rng(0), settings=scene)
+    assert len(alone.candidates) == 1 and not alone.candidates[0].parts
 
 
 def test_nothing_left_says_what_was_removed():

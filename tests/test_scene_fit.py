@@ -66,6 +66,33 @@ def test_scene_fits_every_object_near_its_truth(room_scan, tmp_path, monkeypatch
     assert text.count("\nobject ") + text.startswith("object ") == 2 and "2 object(s) fitted" in text
 
 
+@pytest.mark.slow
+def test_a_chair_touching_a_table_is_fitted_as_two_objects(tmp_path):
+    """A held-out chair 2-3 cm from a table (one cluster): the scene cuts it at the gap, the fits
+    judge the whole a pair of objects (scene.json lists it as covered), and each is found with
+    its class."""
+    touching = replace(ROOM, first_neighbour_gap_m=(0.02, 0.03))
+    chair = generate_shape("chair", shape_seed(EVAL_SET_SEED, 100)).mesh
+    room = scan_room(chair, rng=np.random.default_rng(3), settings=touching, target_kind="chair",
+                     others=[("table", table(), "test")])
+    scan = write_room(room, tmp_path / "room", seed=3)
+    from scipy.spatial import cKDTree
+
+    from jsrte.fit.scene import fit_scene
+
+    scene = fit_scene(scan, model="chair,table", preset="smoke", workers=2)
+    assert any(c["reason"].startswith("holds several objects") for c in scene.to_json()["covered"])
+    nearest = cKDTree(room.scan.points)
+    found = {}
+    for obj in scene.fitted:
+        labels = room.labels[nearest.query(obj.points)[1]]
+        labels = labels[labels >= 0]  # leave out mixed pixels
+        main = np.bincount(labels).argmax()
+        assert (labels == main).mean() > 0.9  # one object's points, not the pair's
+        found[int(main)] = obj.model
+    assert found == {0: "chair", 1: "table"}
+
+
 def test_a_failing_object_is_recorded_and_the_others_go_on(room_scan, monkeypatch):
     import importlib
 

@@ -101,9 +101,11 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
         typer.echo(_scene_line(obj))
     for skip in scene.skipped:
         typer.echo(f"skipped candidate {skip['candidate']}: {skip['points']} points, {skip['reason']}")
+    for cover in scene.covered:
+        typer.echo(f"set aside candidate {cover['candidate']}: {cover['points']} points, {cover['reason']}")
     typer.echo(f"{len(scene.fitted)} object(s) fitted, {len(scene.objects) - len(scene.fitted)} failed, "
-               f"{len(scene.skipped)} candidate(s) skipped; wrote {out}/scene.json, scene.ply, overlay.png, "
-               f"objects/NN/")
+               f"{len(scene.skipped)} candidate(s) skipped, {len(scene.covered)} set aside; "
+               f"wrote {out}/scene.json, scene.ply, overlay.png, objects/NN/")
 
 
 def _scene_line(obj) -> str:  # noqa: ANN001

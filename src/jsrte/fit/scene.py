@@ -1,20 +1,28 @@
 """Whole scenes: every object standing on the floor of a scan, each with its class and its fit.
 
-The scan is segmented once (``jsrte.fit.query.scan_candidates``: floor, walls, clusters). Every
-candidate that may be an object (not too small, too flat or too big) is then fitted in turn:
+The scan is segmented once (``jsrte.fit.query.scan_candidates``: floor, walls, clusters). With
+the class unknown, every cluster is cut at its weak necks (:data:`SCENE_SEGMENT`), each whole
+staying a candidate beside its parts: two objects side by side and one object with a narrow
+place look alike before a fit. Then:
 
-1. its class, when several models are given (``--model auto``): each model is fitted quickly
-   to the candidate and the lowest screen score wins (``jsrte.fit.screen.choose_class``, the
-   same scale-free score that picks the class of a single object);
-2. the full fit with that model and the preset's settings (``jsrte.fit.solve.fit_query``).
+1. every candidate that may be an object (not too small, too flat or too big) is fitted
+   quickly by each model (``jsrte.fit.screen.choose_class``: the same scale-free screen score
+   that picks the class of a single object); with one model, only the candidates of a split;
+2. each split is judged by those fits (:func:`judge_splits`): the whole is one object where its
+   fit explains its points as well as its parts' fits explain theirs, and the points of every
+   part nearly as well as that part's own fit; else its parts are;
+3. every object left gets the full fit with its class and the preset's settings; where the
+   screen leaves two classes close, their full fits decide (``jsrte.fit.classes``).
 
 A candidate whose fit fails (too few points, a degenerate cluster) is recorded as failed with
 the reason and the others go on; candidates the segmentation rejected are listed as skipped with
-their point counts. ``jsrte.fit.scene_outputs`` writes the files.
+their point counts, those the judgement set aside as covered. ``jsrte.fit.scene_outputs``
+writes the files.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,9 +31,11 @@ from typing import Any
 import numpy as np
 
 from jsrte.errors import JsrteError
-from jsrte.fit.screen import ScreenSettings
+from jsrte.fit.query import SdfQuery
+from jsrte.fit.screen import Choice, Screened, ScreenSettings
 from jsrte.options import FitOptions
 from jsrte.result import FitResult
+from jsrte.scans.segment import SegmentSettings
 
 
 @dataclass
@@ -42,6 +52,8 @@ class SceneObject:
     model : the name of the model fitted (the class), None when it failed before the choice
     class_choice : every class's screen score and the margin (None with one model)
     result : the fit (None when it failed)
+    choice : its quick fits by every model (``jsrte.fit.screen.Choice``; None: not screened,
+        a text: why it could not be)
     """
 
     index: int
@@ -52,6 +64,7 @@ class SceneObject:
     model: str | None = None
     class_choice: dict[str, Any] | None = None
     result: FitResult | None = None
+    choice: Choice | str | None = field(default=None, repr=False)
 
     @property
     def centre(self) -> list[float]:
@@ -93,6 +106,8 @@ class SceneResult:
     floor_offset : the floor plane is {x : up·x = floor_offset}; None without a floor
     options : the fit options as recorded
     models : the names of the models the classes were chosen among
+    covered : the candidates judged no object of their own (pieces of a whole, or wholes of
+        several objects): position, points, reason
     """
 
     objects: list[SceneObject]
@@ -103,6 +118,7 @@ class SceneResult:
     floor_offset: float | None = None
     options: dict[str, Any] = field(default_factory=dict)
     models: list[str] = field(default_factory=list)
+    covered: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def fitted(self) -> list[SceneObject]:
@@ -116,9 +132,24 @@ class SceneResult:
                 "floor": {"up": None if self.up is None else np.asarray(self.up, float).tolist(),
                           "offset": self.floor_offset},
                 "walls": seg.get("walls", []), "removed": seg.get("removed", {}),
-                "objects": [o.to_json() for o in self.objects], "skipped": self.skipped,
+                "objects": [o.to_json() for o in self.objects], "skipped": self.skipped, "covered": self.covered,
                 "counts": {"fitted": len(self.fitted), "failed": len(self.objects) - len(self.fitted),
                            "skipped": len(self.skipped)}}
+
+
+SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008)
+"""The segmentation of a scene whose class is unknown: without a class shape to say where to cut,
+every neck of normalized cut 0.008 or less is cut (the whole staying a candidate beside its
+parts), and fits of the whole and of its parts decide (:func:`judge_splits`). On the tuning
+rooms (100-129 of seed 0) every cut between two objects touching each other scored 0.0074 or
+less; cuts within one object ran from 0.0007 to 0.02."""
+
+
+PART_EXPLAINED = 0.05
+"""A part of a split whose best screen score is at most this is explained well by some class
+(on the tuning rooms: 0.005-0.04 on parts that are most of one object; 0.07-0.1 on a wall's
+remnant or a small, barely seen chair): its whole must explain its points too
+(:func:`judge_splits`). A part no class explains well is no evidence of an object of its own."""
 
 
 def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions | None = None,
@@ -132,11 +163,11 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     model : the models the class is chosen among (as ``jsrte.fit.fit``: "auto" for every
         shipped model, "chair,table", a list, or one model: then no class is chosen)
     options : how to fit (``FitOptions``; ``at`` is refused: a scene fits every object)
-    screen : how the class of each object is screened
+    screen : how the class of each object is screened and each split judged
     progress : show each fit's progress bar (one object at a time only)
-    workers : objects fitted at once, each in a thread of its own with one PyTorch thread (the
-        fits' PyTorch and NumPy work runs outside Python's interpreter lock); 1: one after the
-        other, with PyTorch's threads as they are set
+    workers : objects screened and fitted at once, each in a thread of its own with one PyTorch
+        thread (the fits' PyTorch and NumPy work runs outside Python's interpreter lock); 1: one
+        after the other, with PyTorch's threads as they are set
     changes : options by name, applied over ``options``
 
     Raises ``JsrteError`` when the scan holds no object (saying what segmentation removed).
@@ -154,62 +185,164 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         shape = class_shape(next(iter(models.values()))) if len(models) == 1 else None
         cands = scan_candidates(path, rng=np.random.default_rng(options.seed), up=_array(options.up),
                                 viewpoints=_array(options.viewpoints), settings=settings.scan_sdf,
-                                units_check=options.units_check, shape=shape)
+                                units_check=options.units_check, shape=shape,
+                                segment=SegmentSettings() if shape is not None else SCENE_SEGMENT)
     segmented = cands.segmented
     seg = cands.segmentation
     cloud_points = np.asarray(segmented.cloud.points, float)
-    objects = [SceneObject(number, k, cloud_points[segmented.index[seg.candidates[k].index]])
-               for number, k in enumerate(cands.valid())]
-    _fit_objects(objects, cands, models, options, screen, progress, workers)
+    screened = _in_threads(lambda k: _screen_candidate(k, cands, models, options, screen),
+                           _to_screen(cands, several=len(models) > 1), workers)
+    screened = {k: choice for k, choice in screened}
+    covered = judge_splits(seg.candidates, screened, models, screen, options.seed)
+    found = [k for k in _objects(cands) if k not in covered]
+    objects = [SceneObject(number, k, cloud_points[segmented.index[seg.candidates[k].index]],
+                           choice=screened.get(k))
+               for number, k in enumerate(found)]
+    _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen, progress and workers == 1),
+                objects, workers)
     skipped = [{"candidate": k, "points": len(c.index), "reason": c.rejected}
                for k, c in enumerate(seg.candidates) if c.rejected]
     floor = segmented.floor
     return SceneResult(objects, skipped, seg.to_json(), cloud_points, up=np.asarray(segmented.up, float),
                        floor_offset=None if floor is None else float(floor.offset),
-                       options=options.record(), models=list(models))
+                       options=options.record(), models=list(models),
+                       covered=_covered_json(seg.candidates, covered))
 
 
-def _fit_objects(objects: list[SceneObject], cands: object, models: dict, options: FitOptions,
-                 screen: ScreenSettings, progress: bool, workers: int) -> None:
-    """Fit every one of ``objects`` (in ``workers`` threads when more than one); a failed fit is
-    recorded in its object and the others go on."""
-    def fit_one(obj: SceneObject) -> None:
-        try:
-            _fit_object(obj, cands, models, options, screen, progress and workers == 1)
-        except JsrteError as exc:
-            obj.status, obj.reason, obj.result = "failed", str(exc), None
+def _objects(cands: object) -> list[int]:
+    """Positions of every candidate that may be an object, a split's whole too, best class rank
+    (else most points) first."""
+    candidates = cands.segmentation.candidates
+    ok = [k for k, c in enumerate(candidates) if not c.rejected]
+    return sorted(ok, key=lambda k: candidates[k].summary.get("rank", -len(candidates[k].index)))
 
-    workers = max(1, min(workers, len(objects)))
+
+def _to_screen(cands: object, several: bool) -> list[int]:
+    """The candidates to fit quickly: with ``several`` models every one (its class is chosen so);
+    with one, those of a split (a whole and its parts are judged against each other)."""
+    candidates = cands.segmentation.candidates
+    return [k for k in _objects(cands) if several or candidates[k].parts or candidates[k].parent is not None]
+
+
+def _screen_candidate(k: int, cands: object, models: dict, options: FitOptions,
+                      screen: ScreenSettings) -> tuple[int, Choice | str]:
+    """Candidate ``k``'s query screened by every model (``jsrte.fit.screen.choose_class``), or
+    why it could not be."""
+    from jsrte.fit.screen import choose_class
+
+    try:
+        return k, choose_class(_query(cands, k, options), models, settings=screen, seed=options.seed)
+    except JsrteError as exc:
+        return k, str(exc)
+
+
+def _query(cands: object, k: int, options: FitOptions) -> SdfQuery:
+    """The SDF query of candidate ``k``, its record saying the scene chose it."""
+    query = cands.query(k, rng=np.random.default_rng(options.seed))
+    query.info["segmentation"] |= {"chosen": k, "chosen_by": "scene"}
+    return query
+
+
+def judge_splits(candidates: list, screened: dict[int, Choice | str], models: dict, settings: ScreenSettings,
+                 seed: int) -> set[int]:
+    """The candidates that are not objects of their own, each split judged by the quick fits of
+    its whole and its parts (``jsrte.fit.screen.split_or_whole``): a candidate scores its best
+    class's screen score, and the whole's best fit must lie at most ``whole_explains`` times
+    as far from the points of its best part, and of every part some model explains well
+    (a screen score of at most :data:`PART_EXPLAINED`), as that part's own best fit
+    (:func:`explained_by`; a single object's split asks it of the best part only: a scene
+    keeps every part, and a table fitted to a table and the chair beside it explains the
+    table's points well but not the chair's). ``screened``: candidate position -> its screens
+    (or why it has none: a whole that has none, or has a part with none, is not judged, its
+    parts stand)."""
+    from jsrte.fit.screen import split_or_whole
+
+    def best(k: int) -> Screened:
+        return min(screened[k].screened, key=lambda s: s.score)
+
+    def explains(whole: int, best_part: int) -> float:
+        parts = [p for p in candidates[whole].parts if p == best_part or best(p).score <= PART_EXPLAINED]
+        return max(explained_by(models, best(whole), best(p), settings, seed) for p in parts)
+
+    scores = {k: best(k).score for k, choice in screened.items() if isinstance(choice, Choice)}
+    unjudged = {k for k, c in enumerate(candidates) if c.parts and not c.rejected and k not in scores}
+    return split_or_whole(candidates, scores, explains, settings) | unjudged
+
+
+def explained_by(models: dict, whole: Screened, part: Screened, settings: ScreenSettings, seed: int = 0) -> float:
+    """How far the fitted surface of ``whole`` lies from the points of ``part``, over how far the
+    part's own fit lies, each fit by its own model: mean |SDF| at up to ``surface_points`` of
+    the part's points, each capped at ``residual_cap`` part radii."""
+    from jsrte.fit.screen import predicted_sdf
+
+    surface = part.query.surface
+    pick = np.random.default_rng(seed).permutation(len(surface))[: settings.surface_points]
+    cap = settings.residual_cap * part.parts["radius"]
+
+    def distance(fit: Screened) -> float:
+        return float(np.minimum(np.abs(predicted_sdf(models[fit.model], fit.result, surface[pick])), cap).mean())
+
+    return distance(whole) / max(distance(part), 1e-12)
+
+
+def _covered_json(candidates: list, covered: set[int]) -> list[dict[str, Any]]:
+    """scene.json's record of the candidates judged no object of their own."""
+    out = []
+    for k in sorted(covered):
+        c = candidates[k]
+        reason = "holds several objects (fitted as its parts)" if c.parts else f"a piece of candidate {c.parent}"
+        out.append({"candidate": k, "points": len(c.index), "reason": reason})
+    return out
+
+
+def _in_threads(function: Callable[[Any], Any], items: list, workers: int) -> list:
+    """``function`` of every one of ``items``, in ``workers`` threads with one PyTorch thread each
+    (one: in turn, PyTorch's threads as they are); the results in order."""
+    workers = max(1, min(workers, len(items)))
     if workers == 1:
-        for obj in objects:
-            fit_one(obj)
-        return
+        return [function(item) for item in items]
     import torch
 
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         with ThreadPoolExecutor(workers) as pool:
-            list(pool.map(fit_one, objects))
+            return list(pool.map(function, items))
     finally:
         torch.set_num_threads(before)
 
 
 def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptions, screen: ScreenSettings,
                 progress: bool) -> None:
-    """Choose ``obj``'s class and fit it (fills ``obj.model``, ``class_choice``, ``result``)."""
+    """Fit ``obj`` with its class (fills ``obj.model``, ``class_choice``, ``result``); where the
+    screen leaves classes close, their full fits decide (``jsrte.fit.classes.fit_contenders``).
+    A fit that fails is recorded in ``obj`` and the others go on."""
     from jsrte.fit import fit_recorded
-    from jsrte.fit.screen import choose_class
+    from jsrte.fit.classes import fit_contenders
+    from jsrte.fit.screen import contending
 
-    query = cands.query(obj.candidate, rng=np.random.default_rng(options.seed))
-    query.info["segmentation"] |= {"chosen": obj.candidate, "chosen_by": "scene"}
-    if len(models) > 1:
-        choice = choose_class(query, models, settings=screen, seed=options.seed)
-        model, obj.class_choice = choice.model, choice.class_json()
-        obj.model = next(name for name, m in models.items() if m is model)
-    else:
-        (obj.model, model), = models.items()
-    obj.result = fit_recorded(model, query, options, class_choice=obj.class_choice, progress=progress)
+    try:
+        choice = obj.choice
+        if isinstance(choice, str):
+            raise JsrteError(choice)
+        if len(models) == 1:
+            (obj.model, model), = models.items()
+            query = _query(cands, obj.candidate, options) if choice is None else choice.query
+            obj.result = fit_recorded(model, query, options, progress=progress)
+            return
+        obj.class_choice = choice.class_json()
+        classes = contending(choice.classes, screen)
+        if len(classes) == 1:
+            obj.model = classes[0]
+            obj.result = fit_recorded(models[obj.model], choice.query, options, class_choice=obj.class_choice,
+                                      progress=progress)
+            return
+        obj.result = fit_contenders({name: choice.query for name in classes}, models, options, obj.class_choice,
+                                    settings=screen, progress=progress)
+        obj.class_choice = obj.result.info["class"]
+        obj.model = obj.class_choice["chosen"]
+    except JsrteError as exc:
+        obj.status, obj.reason, obj.result = "failed", str(exc), None
 
 
 def _box_centre(points: np.ndarray) -> list[float]:

@@ -105,6 +105,11 @@ class SegmentSettings:
     object's surface costs more)."""
     split_margin: float = 0.1
     """A split is kept when a part's class score beats the whole's by this much."""
+    cut_max_without_class: float | None = None
+    """Without a class shape, a neck of at most this value both of whose parts could be objects
+    is split, the whole staying a candidate beside its parts: for whole scenes, where fits of
+    the whole and of its parts decide (``jsrte.fit.scene``). None: without a class nothing is
+    split (but a cluster too big to be an object)."""
     size_weight: float = 0.1
     """Candidates are ranked by class score plus this times log(most points / their points):
     of two shapes alike, the bigger is the object (not a shred of another)."""
@@ -361,12 +366,14 @@ def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
 
 @dataclass
 class _Node:
-    """A cluster of a split tree: its points ``index`` and the position of its ``parent`` in the
-    tree's list (None: a root)."""
+    """A cluster of a split tree: its points ``index``, the position of its ``parent`` in the
+    tree's list (None: a root), a refused weak ``neck`` and the value of the cut that split it
+    (``cut_value``; None: not split)."""
 
     index: np.ndarray
     parent: int | None
     neck: list[np.ndarray] = field(default_factory=list)
+    cut_value: float | None = None
 
 
 def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
@@ -383,25 +390,25 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, sh
     if cut is None or not cut[2]:
         nodes.append(_Node(cluster, parent, cut[0] if cut is not None and depth == 0 else []))
         return
-    parts, too_big, _ = cut
+    parts, too_big, _, value = cut
     if not too_big:
-        nodes.append(_Node(cluster, parent))
+        nodes.append(_Node(cluster, parent, cut_value=value))
         parent = len(nodes) - 1
     for part in parts:
         _split_tree(part, points, heights, shape, s, nodes, parent, depth + 1)
 
 
 def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-         s: SegmentSettings, depth: int) -> tuple[list[np.ndarray], bool, bool] | None:
+         s: SegmentSettings, depth: int) -> tuple[list[np.ndarray], bool, bool, float] | None:
     """The two parts of ``cluster`` at its weakest neck, whether the whole is too big to be an
-    object and whether the split is kept (:func:`_split_tree`; not kept: no part matches the
-    class better by ``split_margin``); None when it has no neck both of whose parts could be
-    objects."""
+    object, whether the split is kept (:func:`_split_tree`; not kept: no part matches the
+    class better by ``split_margin``) and the cut's value; None when it has no neck both of
+    whose parts could be objects."""
     if len(cluster) < 2 * s.shred_points or depth >= s.split_depth:
         return None
     whole = class_score(points[cluster], heights[cluster], shape)
     too_big = _too_big(points[cluster], heights[cluster], s)
-    if whole is None and not too_big:
+    if whole is None and not too_big and s.cut_max_without_class is None:
         return None
     side, value = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours)
     parts = [cluster[side], cluster[~side]]
@@ -409,8 +416,10 @@ def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: Cl
         return None
     if not too_big and not all(_object_sized(points[p], heights[p], s) for p in parts):
         return None  # a table's top cut from its legs: a part no object could be
+    if whole is None:
+        return parts, too_big, too_big or value <= s.cut_max_without_class, value
     best = min((class_score(points[p], heights[p], shape) or 0.0) for p in parts)
-    return parts, too_big, too_big or (whole is not None and best < whole - s.split_margin)
+    return parts, too_big, too_big or best < whole - s.split_margin, value
 
 
 def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
@@ -423,6 +432,8 @@ def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarr
     candidates = [_candidate(nodes[k].index, points, heights, up, shape, s) for k in order]
     for k in order:
         candidates[position[k]].neck = [_candidate(part, points, heights, up, shape, s) for part in nodes[k].neck]
+        if nodes[k].cut_value is not None:
+            candidates[position[k]].summary["cut"] = round(nodes[k].cut_value, 5)
     for k in order:
         if parent[k] is not None:
             candidates[position[k]].parent = position[parent[k]]

@@ -248,8 +248,9 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     """The candidates that are not objects of their own, each split judged by the quick fits of
     its whole and its parts (``jsrte.fit.screen.split_or_whole``): a candidate scores its best
     class's screen score, and the whole's best fit must lie at most ``whole_explains`` times
-    as far from the points of its best part, and of every part some model explains well
-    (a screen score of at most :data:`PART_EXPLAINED`), as that part's own best fit
+    as far from the points of every part some model explains well (a screen score of at most
+    :data:`PART_EXPLAINED`; where none is, from its best part, maybe a part of a part) as that
+    part's own best fit
     (:func:`explained_by`; a single object's split asks it of the best part only: a scene
     keeps every part, and a table fitted to a table and the chair beside it explains the
     table's points well but not the chair's). ``screened``: candidate position -> its screens
@@ -261,7 +262,8 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
         return min(screened[k].screened, key=lambda s: s.score)
 
     def explains(whole: int, best_part: int) -> float:
-        parts = [p for p in candidates[whole].parts if p == best_part or best(p).score <= PART_EXPLAINED]
+        parts = [p for p in candidates[whole].parts
+                 if p == best_part or best(p).score <= PART_EXPLAINED] or [best_part]
         return max(explained_by(models, best(whole), best(p), settings, seed) for p in parts)
 
     scores = {k: best(k).score for k, choice in screened.items() if isinstance(choice, Choice)}

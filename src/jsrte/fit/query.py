@@ -110,12 +110,18 @@ class ScanCandidates:
         """The candidates and the choice (``jsrte.scans.segment.Segmentation``)."""
         return self.segmented.segmentation
 
+    def possible(self) -> list[int]:
+        """Positions of every candidate that may be an object, a split's whole too, best class
+        rank (else most points) first."""
+        cands = self.segmentation.candidates
+        ok = [k for k, c in enumerate(cands) if not c.rejected]
+        return sorted(ok, key=lambda k: cands[k].summary.get("rank", -len(cands[k].index)))
+
     def valid(self) -> list[int]:
         """Positions of the candidates that may be the object, best class rank first: those not
         split further (a split's whole overlaps its parts; the screen weighs it against them)."""
         cands = self.segmentation.candidates
-        ok = [k for k, c in enumerate(cands) if not c.rejected and not c.parts]
-        return sorted(ok, key=lambda k: cands[k].summary.get("rank", -len(cands[k].index)))
+        return [k for k in self.possible() if not cands[k].parts]
 
     def query(self, candidate: int | None = None, *, keep: np.ndarray | None = None,
               rng: np.random.Generator | None = None) -> SdfQuery:

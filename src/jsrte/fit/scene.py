@@ -190,11 +190,10 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     segmented = cands.segmented
     seg = cands.segmentation
     cloud_points = np.asarray(segmented.cloud.points, float)
-    screened = _in_threads(lambda k: _screen_candidate(k, cands, models, options, screen),
-                           _to_screen(cands, several=len(models) > 1), workers)
-    screened = {k: choice for k, choice in screened}
+    screened = dict(_in_threads(lambda k: _screen_candidate(k, cands, models, options, screen),
+                                _to_screen(cands, several=len(models) > 1), workers))
     covered = judge_splits(seg.candidates, screened, models, screen, options.seed)
-    found = [k for k in _objects(cands) if k not in covered]
+    found = [k for k in cands.possible() if k not in covered]
     objects = [SceneObject(number, k, cloud_points[segmented.index[seg.candidates[k].index]],
                            choice=screened.get(k))
                for number, k in enumerate(found)]
@@ -209,19 +208,11 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
                        covered=_covered_json(seg.candidates, covered))
 
 
-def _objects(cands: object) -> list[int]:
-    """Positions of every candidate that may be an object, a split's whole too, best class rank
-    (else most points) first."""
-    candidates = cands.segmentation.candidates
-    ok = [k for k, c in enumerate(candidates) if not c.rejected]
-    return sorted(ok, key=lambda k: candidates[k].summary.get("rank", -len(candidates[k].index)))
-
-
 def _to_screen(cands: object, several: bool) -> list[int]:
     """The candidates to fit quickly: with ``several`` models every one (its class is chosen so);
     with one, those of a split (a whole and its parts are judged against each other)."""
     candidates = cands.segmentation.candidates
-    return [k for k in _objects(cands) if several or candidates[k].parts or candidates[k].parent is not None]
+    return [k for k in cands.possible() if several or candidates[k].parts or candidates[k].parent is not None]
 
 
 def _screen_candidate(k: int, cands: object, models: dict, options: FitOptions,
@@ -250,13 +241,12 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     class's screen score, and the whole's best fit must lie at most ``whole_explains`` times
     as far from the points of every part some model explains well (a screen score of at most
     :data:`PART_EXPLAINED`; where none is, from its best part, maybe a part of a part) as that
-    part's own best fit
-    (:func:`explained_by`; a single object's split asks it of the best part only: a scene
-    keeps every part, and a table fitted to a table and the chair beside it explains the
-    table's points well but not the chair's). ``screened``: candidate position -> its screens
-    (or why it has none: a whole that has none, or has a part with none, is not judged, its
-    parts stand)."""
-    from jsrte.fit.screen import split_or_whole
+    part's own best fit (``jsrte.fit.screen.explained_ratio``, each fit by its own model). A
+    single object's split asks it of the best part only; a scene keeps every part, and a table
+    fitted to a table and the chair beside it explains the table's points well but not the
+    chair's. ``screened``: candidate position -> its screens (or why it has none: a whole that
+    has none, or has a part with none, is not judged, its parts stand)."""
+    from jsrte.fit.screen import explained_ratio, split_or_whole
 
     def best(k: int) -> Screened:
         return min(screened[k].screened, key=lambda s: s.score)
@@ -264,27 +254,13 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     def explains(whole: int, best_part: int) -> float:
         parts = [p for p in candidates[whole].parts
                  if p == best_part or best(p).score <= PART_EXPLAINED] or [best_part]
-        return max(explained_by(models, best(whole), best(p), settings, seed) for p in parts)
+        by_whole = best(whole)
+        return max(explained_ratio(models[by_whole.model], by_whole, best(p), settings, seed,
+                                   part_model=models[best(p).model]) for p in parts)
 
     scores = {k: best(k).score for k, choice in screened.items() if isinstance(choice, Choice)}
     unjudged = {k for k, c in enumerate(candidates) if c.parts and not c.rejected and k not in scores}
     return split_or_whole(candidates, scores, explains, settings) | unjudged
-
-
-def explained_by(models: dict, whole: Screened, part: Screened, settings: ScreenSettings, seed: int = 0) -> float:
-    """How far the fitted surface of ``whole`` lies from the points of ``part``, over how far the
-    part's own fit lies, each fit by its own model: mean |SDF| at up to ``surface_points`` of
-    the part's points, each capped at ``residual_cap`` part radii."""
-    from jsrte.fit.screen import predicted_sdf
-
-    surface = part.query.surface
-    pick = np.random.default_rng(seed).permutation(len(surface))[: settings.surface_points]
-    cap = settings.residual_cap * part.parts["radius"]
-
-    def distance(fit: Screened) -> float:
-        return float(np.minimum(np.abs(predicted_sdf(models[fit.model], fit.result, surface[pick])), cap).mean())
-
-    return distance(whole) / max(distance(part), 1e-12)
 
 
 def _covered_json(candidates: list, covered: set[int]) -> list[dict[str, Any]]:

@@ -511,14 +511,15 @@ def split_or_whole(candidates: list, scores: dict[int, float], explains: object 
 
 
 def explained_ratio(model: DeepSdfModel, whole: Screened, part: Screened, settings: ScreenSettings,
-                    seed: int = 0) -> float:
-    """How far the fitted surface of ``whole`` lies from the points of ``part`` (one of its
-    parts), over how far the part's own fitted surface lies: mean |SDF| at up to
-    ``surface_points`` of the part's points, each capped at ``residual_cap`` part radii."""
+                    seed: int = 0, part_model: DeepSdfModel | None = None) -> float:
+    """How far the fitted surface of ``whole`` (a fit of ``model``) lies from the points of
+    ``part``, over how far the part's own fitted surface lies (a fit of ``part_model``, default
+    ``model``): mean |SDF| at up to ``surface_points`` of the part's points, each capped at
+    ``residual_cap`` part radii."""
     surface = part.query.surface
     pick = np.random.default_rng(seed).permutation(len(surface))[: settings.surface_points]
     cap = settings.residual_cap * part.parts["radius"]
-    own = np.minimum(np.abs(predicted_sdf(model, part.result, surface[pick])), cap).mean()
+    own = np.minimum(np.abs(predicted_sdf(part_model or model, part.result, surface[pick])), cap).mean()
     by_whole = np.minimum(np.abs(predicted_sdf(model, whole.result, surface[pick])), cap).mean()
     return float(by_whole / max(own, 1e-12))
 

@@ -269,6 +269,30 @@ def test_a_split_keeps_its_whole_as_a_candidate():
     assert not at.candidates[at.chosen].parts and (at.index < len(chair_points)).mean() > 0.95
 
 
+@pytest.mark.parametrize("keeps_parts", [True, False])
+def test_clusters_joined_on_class_evidence_stay_candidates_as_its_parts(keeps_parts):
+    """A chair and a tall box 8 cm apart (two clusters, within joining reach) whose union matches
+    the class's proportions as well as the chair alone: they are joined, and each stays a
+    candidate as a part of the union (for the screen to judge) unless ``join_keeps_parts`` is off."""
+    chair = stand_in_chair()
+    side_box = box((0.3, 0.7, 0.3))
+    side_box.apply_translation([chair.bounds[1][0] + 0.08 + 0.15, 0.0, 0.0])
+    points = np.concatenate([_surface_points(chair, 4000, 0), _surface_points(side_box, 2800, 1)])
+    pair = trimesh.util.concatenate([chair, side_box])
+    shape = ClassShape.of_mesh("pair", pair.vertices, pair.sample(5000, seed=0))
+    result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0),
+                             shape=shape, settings=SegmentSettings(join_keeps_parts=keeps_parts))
+    union = result.candidates[0]
+    assert len(union.index) > 0.95 * len(points) and union.parent is None
+    if not keeps_parts:
+        assert len(result.candidates) == 1 and not union.parts
+        return
+    chair_share = sorted(float((result.candidates[p].index < 4000).mean()) for p in union.parts)
+    assert union.summary["joined"] and chair_share == [0.0, 1.0]
+    assert all(result.candidates[p].parent == 0 for p in union.parts)
+    assert result.to_json()["candidates"][0]["parts"] == union.parts
+
+
 def test_without_a_class_a_scene_cuts_weak_necks_and_keeps_the_whole():
     """With no class to say where to cut, a plain segmentation leaves a scanned chair and the box
     2-3 cm from it as one candidate; a scene's (``cut_max_without_class``) cuts them at the gap

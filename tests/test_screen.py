@@ -184,15 +184,17 @@ def test_a_chair_beside_a_box_is_chosen_without_the_box(tmp_path, chair_model):
 
     room, ply = chair_beside_box(held_out("chair", 102), tmp_path)
 
-    def segment(model):
-        return scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model))
+    segmented = []
 
-    cands = segment(chair_model)
-    labels = room.labels[cands.segmented.index]
-    seg = cands.segmentation
+    def segment(model):
+        segmented.append(scan_candidates(ply, rng=np.random.default_rng(0), shape=class_shape(model)))
+        return segmented[-1]
+
+    record = choose_in_scan(ply, {"chair": chair_model}, segment=segment).query.info["segmentation"]
+    labels = room.labels[segmented[0].segmented.index]
+    seg = segmented[0].segmentation
     pair = [k for k, c in enumerate(seg.candidates) if c.parts and np.mean(labels[c.index] == 1) > 0.2]
     assert pair and np.mean(labels[seg.candidates[pair[0]].index] == 0) > 0.2  # chair and box, one whole
-    record = choose_in_scan(ply, {"chair": chair_model}, segment=segment).query.info["segmentation"]
     picked = seg.candidates[record["chosen"]].index
     assert "screen" in record["candidates"][pair[0]]  # the whole competed
     assert np.mean(labels[picked] == 0) > 0.9 and len(picked) > 0.7 * np.sum(labels == 0)
@@ -428,3 +430,60 @@ def test_a_chair_and_a_box_one_candidate_are_cut_when_the_chair_model_explains_t
     assert whole["screen"]["score"] > ScreenSettings().neck_score and len(whole["parts"]) == 2
     picked = seg.candidates[record["chosen"]].index
     assert np.mean(labels[picked] == 0) > 0.9 and len(picked) > 0.7 * np.sum(labels == 0)
+
+
+def _cut_ball(rng: np.random.Generator, centre: np.ndarray) -> tuple[np.ndarray, object]:
+    """Points: a 1 m sphere at ``centre`` and the blob of :func:`_two_pieces` 0.2 m farther off;
+    ``ScanCandidates``-like: 0 (both) cut through the sphere into 1 (its cap x < 0.2) and 2 (the
+    rest of the sphere with the blob)."""
+    from types import SimpleNamespace
+
+    from jsrte.scans.segment import Candidate
+
+    ball, blob = _two_pieces(rng, centre)
+    points = np.concatenate([ball, blob + [0.2, 0.0, 0.0]])
+    cap = np.flatnonzero(points[:, 0] - centre[0] < 0.2)
+    rest = np.setdiff1d(np.arange(len(points)), cap)
+    candidates = [Candidate(np.arange(len(points)), parts=[1, 2], summary={"rank": 0.0}),
+                  Candidate(cap, parent=0, summary={"rank": 0.1}), Candidate(rest, parent=0, summary={"rank": 0.2})]
+    segmented = SimpleNamespace(cloud=SimpleNamespace(points=points), index=np.arange(len(points)))
+    return points, SimpleNamespace(segmentation=SimpleNamespace(candidates=candidates), segmented=segmented,
+                                   query=lambda k: candidates[k].index)
+
+
+@pytest.mark.parametrize("grown_score", [0.012, 0.05])
+def test_a_piece_of_an_object_grows_over_the_points_its_fit_passes_through(monkeypatch, grown_score):
+    """A cut through a sphere leaves its cap alone and the rest with a blob beside it. The cap's
+    fit (the whole sphere) passes through the rest of the sphere, not the blob: the grown
+    candidate holds the sphere, and it is chosen unless its screen scores worse than the cap's
+    by more than ``grow_margin``."""
+    import torch
+
+    from analytic import SphereDecoder
+    from jsrte.fit.screen import Screened, ScreenSettings, grow
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.model.checkpoint import DeepSdfModel
+    from jsrte.result import FitResult
+
+    screen_module = importlib.import_module("jsrte.fit.screen")
+    rng = np.random.default_rng(0)
+    centre = np.array([2.0, 0.5, -1.0])
+    points, cands = _cut_ball(rng, centre)
+    model = DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": "ball"})
+    result = FitResult("jsrte", Sim3(2.0, np.eye(3), centre), np.zeros(2, np.float32), None, 0.0, {})
+    cap = Screened("ball", 1, None, result, 0.01, {"residual": 0.01, "freespace": 0.0, "rank": 0.1, "radius": 0.6})
+    asked = []
+
+    def screened(model, name, index, candidate, settings, seed, rank=0.0):
+        asked.append((candidate, len(index), rank))
+        return Screened(name, candidate, index, result, grown_score, {"residual": grown_score, "rank": rank})
+
+    monkeypatch.setattr(screen_module, "screen", screened)
+    chosen = grow(cap, cands, model, ScreenSettings(), 0)
+    candidates = cands.segmentation.candidates
+    assert asked == [(3, 700, 0.1)] and len(candidates) == 4
+    assert np.array_equal(candidates[3].index, np.arange(700)) and candidates[3].parent == 0
+    assert candidates[3].summary["grown_from"] == 1 and candidates[3].summary["screen"]["score"] == grown_score
+    assert chosen.candidate == (3 if grown_score <= 0.01 + ScreenSettings().grow_margin else 1)
+    whole = Screened("ball", 0, None, result, 0.01, {"residual": 0.01, "rank": 0.0, "radius": 1.0})
+    assert grow(whole, cands, model, ScreenSettings(), 0) is whole and len(asked) == 1  # nothing to grow over

@@ -31,7 +31,9 @@ what the split explains of the whole's points; a chair model fitted to a chair b
 explains the box badly, a bed model fitted to a whole bed explains all of it. With one model,
 a candidate the model explains badly that segmentation left whole at a weak neck (proportions
 gave no reason to cut: a chair half hidden by the box beside it) is cut there, and its parts
-are screened and judged the same way (:func:`cut_necks`).
+are screened and judged the same way (:func:`cut_necks`). A chosen candidate that is a piece of
+a bigger cluster (a cut through the chair left its legs with the box) grows over the cluster's
+points that its fit passes through (:func:`grow`).
 """
 
 from __future__ import annotations
@@ -121,6 +123,14 @@ class ScreenSettings:
     slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs
     are screened only where fewer than ``candidates`` others are, and are chosen only where
     nothing else was screened (0: no slabs)."""
+    grow_within: float = 0.03
+    """A chosen candidate that is a piece of a bigger cluster takes in that cluster's points
+    within this many of its radii of its fitted surface (the rest of the object, which a cut
+    through it left out), when the grown candidate's screen scores at most its own plus
+    ``grow_margin`` (:func:`grow`; 0: never)."""
+    grow_margin: float = 0.01
+    grow_min_share: float = 0.05
+    """... and when growing adds at least this share of its points."""
 
 
 @dataclass
@@ -323,12 +333,44 @@ def _object_of(name: str, cands: object, screened: list[Screened], refits: list[
         cands.segmentation.candidates[s.candidate].summary["screen"] = record
     seg = cands.segmentation
     by_class = seg.chosen
+    best = grow(best, cands, model, settings, seed)
     seg.chosen, seg.index, seg.how = best.candidate, seg.candidates[best.candidate].index, "fit"
     query = replace(best.query, info=dict(best.query.info))  # another model may share the candidate's query
     if best.candidate == by_class and final_rng is not None:
         query = cands.query(best.candidate, rng=final_rng)  # the same samples as without a screen
     query.info["segmentation"] = seg.to_json()
     return query
+
+
+def grow(best: Screened, cands: object, model: DeepSdfModel, settings: ScreenSettings, seed: int) -> Screened:
+    """``best``, or its candidate grown over the top-most cluster it was split or joined from
+    (``cands``: its ``ScanCandidates``): a cut through a chair beside a box leaves the chair's
+    legs with the box, and the chair's fit, which completes the chair, passes through them. The
+    cluster's points within ``grow_within`` candidate radii of the fitted surface join the
+    candidate; the grown candidate (a new part of the cluster, its summary's ``grown_from`` the
+    candidate) is screened, and chosen when it scores at most ``best``'s plus ``grow_margin``."""
+    from jsrte.scans.segment import Candidate
+
+    candidates = cands.segmentation.candidates
+    root = _root(candidates, best.candidate)
+    if settings.grow_within <= 0 or root == best.candidate:
+        return best
+    points = np.asarray(cands.segmented.cloud.points)[cands.segmented.index]
+    own, pool = candidates[best.candidate].index, candidates[root].index
+    near = np.abs(predicted_sdf(model, best.result, points[pool])) <= settings.grow_within * best.parts["radius"]
+    grown = np.union1d(own, pool[near])
+    if len(grown) < (1.0 + settings.grow_min_share) * len(own):
+        return best
+    box = points[grown].min(0), points[grown].max(0)
+    summary = {"points": int(len(grown)), "centre": ((box[0] + box[1]) / 2.0).round(4).tolist(),
+               "grown_from": best.candidate} | (
+        {"rank": candidates[best.candidate].summary["rank"]} if "rank" in candidates[best.candidate].summary else {})
+    candidates.append(Candidate(index=grown, summary=summary, parent=root))
+    k = len(candidates) - 1
+    with stage("screen"):
+        grown_screen = screen(model, best.model, cands.query(k), k, settings, seed, best.parts["rank"])
+    candidates[k].summary["screen"] = grown_screen.to_json()
+    return grown_screen if grown_screen.score <= best.score + settings.grow_margin else best
 
 
 def class_scores(per_model: dict[str, object], screened: list[Screened], queries: dict[str, SdfQuery],

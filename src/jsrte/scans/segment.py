@@ -7,7 +7,9 @@ Above the floor (found by :func:`jsrte.scans.preprocess.segment_floor`), in orde
 2. **Clusters**: DBSCAN (Open3D) of what is left.
 3. **Join**: clusters closer than ``join_m`` are merged when one is a small fragment of the
    other (a chair's legs cut off its seat by sparse sampling) or when the merge matches the
-   class as well as the bigger one alone (a chair's back on thin posts).
+   class as well as the bigger one alone (a chair's back on thin posts). Two big clusters
+   joined on the class's proportions stay candidates beside their union (its ``parts``): a
+   chair beside a box can match the class's proportions too, and the quick fit decides.
 4. **Split**: a cluster that holds two touching objects is cut in two at its narrowest neck
    (normalized cut of its neighbour graph); the split is kept when one of its parts matches
    the class better than the whole (:func:`class_score`), and its parts are cut again. The
@@ -119,6 +121,9 @@ class SegmentSettings:
     """A cluster with less than this share of a neighbour's points is a fragment of it."""
     join_slack: float = 0.05
     """Two big clusters merge when the merge's class score is at most the bigger's plus this."""
+    join_keeps_parts: bool = True
+    """Two big clusters merged on class evidence stay candidates as the merge's parts (the
+    screen judges the merge against them); False: the merge alone is a candidate."""
     support_share: float = 0.5
     """A cluster with this share of its points under a floating one (a leg under a table's top)
     joins it."""
@@ -253,7 +258,7 @@ def segment_objects(
     clusters = _join_supported(clusters, points, heights, up, settings)
     nodes: list[_Node] = []
     for c in clusters:
-        _split_tree(c, points, heights, shape, settings, nodes)
+        _family_tree(c, points, heights, shape, settings, nodes)
     candidates = _family_candidates(nodes, points, heights, up, shape, settings)
     removed["small_clusters"] = int(sum(len(c.index) for c in candidates if c.rejected.startswith("too few")))
     chosen, how = _choose(candidates, points, at, settings.size_weight)
@@ -365,15 +370,38 @@ def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
 
 
 @dataclass
+class _Cluster:
+    """A cluster of points (``index``) and the big clusters it was joined from on class evidence
+    alone (``members``; empty: none), which stay candidates as its parts."""
+
+    index: np.ndarray
+    members: list[_Cluster] = field(default_factory=list)
+
+
+@dataclass
 class _Node:
     """A cluster of a split tree: its points ``index``, the position of its ``parent`` in the
-    tree's list (None: a root), a refused weak ``neck`` and the value of the cut that split it
-    (``cut_value``; None: not split)."""
+    tree's list (None: a root), a refused weak ``neck``, the value of the cut that split it
+    (``cut_value``; None: not split) and whether it was joined from its parts (``joined``)."""
 
     index: np.ndarray
     parent: int | None
     neck: list[np.ndarray] = field(default_factory=list)
     cut_value: float | None = None
+    joined: bool = False
+
+
+def _family_tree(cluster: _Cluster, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
+                 s: SegmentSettings, nodes: list[_Node], parent: int | None = None, depth: int = 0) -> None:
+    """Append to ``nodes`` ``cluster``, its members (joined clusters) as its parts, and what
+    each is split into (:func:`_split_tree`), each parent before its parts."""
+    if not cluster.members:
+        _split_tree(cluster.index, points, heights, shape, s, nodes, parent, depth)
+        return
+    nodes.append(_Node(cluster.index, parent, joined=True))
+    parent = len(nodes) - 1
+    for member in cluster.members:
+        _family_tree(member, points, heights, shape, s, nodes, parent, depth + 1)
 
 
 def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
@@ -434,6 +462,8 @@ def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarr
         candidates[position[k]].neck = [_candidate(part, points, heights, up, shape, s) for part in nodes[k].neck]
         if nodes[k].cut_value is not None:
             candidates[position[k]].summary["cut"] = round(nodes[k].cut_value, 5)
+        if nodes[k].joined:
+            candidates[position[k]].summary["joined"] = True
     for k in order:
         if parent[k] is not None:
             candidates[position[k]].parent = position[parent[k]]
@@ -516,22 +546,23 @@ def _flat(points: np.ndarray, heights: np.ndarray) -> np.ndarray:
 
 
 def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-          s: SegmentSettings) -> list[np.ndarray]:
+          s: SegmentSettings) -> list[_Cluster]:
     """Merge clusters closer than ``join_m``: clusters of fewer than ``shred_points`` points
     into the nearest big one (the largest cluster is big whatever its size); then big ones,
     closest pairs first, a fragment (less than ``fragment_share`` of the other's points)
-    always, two big ones when the merge matches the class as well as the bigger alone (within
-    ``join_slack``; always without a class)."""
+    always (into the nearest of a merge's members), two big ones when the merge matches the
+    class as well as the bigger alone (within ``join_slack``; always without a class): with a
+    class and ``join_keeps_parts``, the two stay the merge's ``members``."""
     clusters = sorted((c for c in clusters if len(c)), key=len, reverse=True)
     if not clusters:
         return []
-    big = [c for k, c in enumerate(clusters) if k == 0 or len(c) >= s.shred_points]  # the largest at least
+    big_points = [c for k, c in enumerate(clusters) if k == 0 or len(c) >= s.shred_points]  # the largest at least
     small = [c for k, c in enumerate(clusters) if k > 0 and len(c) < s.shred_points]
-    big = _attach_small(big, small, points, s.join_m)
+    big = [_Cluster(c) for c in _attach_small(big_points, small, points, s.join_m)]
     gaps = np.full((len(big), len(big)), np.inf)
     for i in range(len(big)):
         for j in range(i + 1, len(big)):
-            gaps[i, j] = gaps[j, i] = _gap(points[big[i]], points[big[j]], s.join_m)
+            gaps[i, j] = gaps[j, i] = _gap(points[big[i].index], points[big[j].index], s.join_m)
     alive = list(range(len(big)))
     refused: set[tuple[int, int]] = set()
     while True:
@@ -540,11 +571,15 @@ def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, s
         if not pairs:
             return [big[k] for k in alive]
         _, i, j = pairs[0]
-        bigger, smaller = (i, j) if len(big[i]) >= len(big[j]) else (j, i)
-        union = np.concatenate([big[bigger], big[smaller]])
-        if len(big[smaller]) < s.fragment_share * len(big[bigger]) or _merge_matches(
-                big[bigger], union, points, heights, shape, s):
-            big[i] = union
+        bigger, smaller = (i, j) if len(big[i].index) >= len(big[j].index) else (j, i)
+        union = np.concatenate([big[bigger].index, big[smaller].index])
+        fragment = len(big[smaller].index) < s.fragment_share * len(big[bigger].index)
+        if fragment or _merge_matches(big[bigger].index, union, points, heights, shape, s):
+            if fragment:
+                big[i] = _absorb(big[bigger], big[smaller].index, points, s.join_m)
+            else:
+                keep = s.join_keeps_parts and shape is not None
+                big[i] = _Cluster(union, [big[bigger], big[smaller]] if keep else [])
             gaps[i] = gaps[:, i] = np.minimum(gaps[i], gaps[j])
             gaps[i, i] = np.inf
             alive.remove(j)
@@ -553,28 +588,38 @@ def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, s
             refused.add((i, j))
 
 
-def _join_supported(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
-                    s: SegmentSettings) -> list[np.ndarray]:
+def _absorb(cluster: _Cluster, fragment: np.ndarray, points: np.ndarray, join_m: float) -> _Cluster:
+    """``cluster`` with the points ``fragment`` (indices) added, to its nearest member too."""
+    members = list(cluster.members)
+    if members:
+        k = int(np.argmin([_gap(points[m.index], points[fragment], np.inf) for m in members]))
+        members[k] = _absorb(members[k], fragment, points, join_m)
+    return _Cluster(np.concatenate([cluster.index, fragment]), members)
+
+
+def _join_supported(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                    s: SegmentSettings) -> list[_Cluster]:
     """A cluster that floats (its lowest points ``min_height_m`` or more above the floor: a
     table's top seen apart from its legs) rests on what stands under it: it takes in every
     cluster lying below its underside (within ``join_m``) with ``support_share`` of its points
-    under it (within ``join_m`` of one of its points, across the ``up`` axis (3,))."""
+    under it (within ``join_m`` of one of its points, across the ``up`` axis (3,)); what it
+    took in is one object with it (no members)."""
     from pykdtree.kdtree import KDTree
 
     across = np.linalg.svd(up.reshape(1, 3))[2][1:]  # (2, 3) a basis of the floor's plane
-    clusters = sorted(clusters, key=lambda c: -float(np.percentile(heights[c], 2)))  # highest first
+    clusters = sorted(clusters, key=lambda c: -float(np.percentile(heights[c.index], 2)))  # highest first
     alive = [True] * len(clusters)
     for i, top in enumerate(clusters):
-        underside = float(np.percentile(heights[top], 2))
+        underside = float(np.percentile(heights[top.index], 2))
         if not alive[i] or underside < s.min_height_m:
             continue
-        tree = KDTree(np.ascontiguousarray(points[top] @ across.T))
+        tree = KDTree(np.ascontiguousarray(points[top.index] @ across.T))
         for j, below in enumerate(clusters):
-            if j == i or not alive[j] or float(np.percentile(heights[below], 98)) > underside + s.join_m:
+            if j == i or not alive[j] or float(np.percentile(heights[below.index], 98)) > underside + s.join_m:
                 continue
-            distance = tree.query(np.ascontiguousarray(points[below] @ across.T), k=1)[0]
+            distance = tree.query(np.ascontiguousarray(points[below.index] @ across.T), k=1)[0]
             if float((distance <= s.join_m).mean()) >= s.support_share:
-                top = np.concatenate([top, below])
+                top = _Cluster(np.concatenate([top.index, below.index]))
                 alive[j] = False
         clusters[i] = top
     return [c for c, keep in zip(clusters, alive, strict=True) if keep]

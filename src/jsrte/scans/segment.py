@@ -576,7 +576,7 @@ def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, s
         fragment = len(big[smaller].index) < s.fragment_share * len(big[bigger].index)
         if fragment or _merge_matches(big[bigger].index, union, points, heights, shape, s):
             if fragment:
-                big[i] = _absorb(big[bigger], big[smaller].index, points, s.join_m)
+                big[i] = _absorb(big[bigger], big[smaller].index, points)
             else:
                 keep = s.join_keeps_parts and shape is not None
                 big[i] = _Cluster(union, [big[bigger], big[smaller]] if keep else [])
@@ -588,12 +588,12 @@ def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, s
             refused.add((i, j))
 
 
-def _absorb(cluster: _Cluster, fragment: np.ndarray, points: np.ndarray, join_m: float) -> _Cluster:
+def _absorb(cluster: _Cluster, fragment: np.ndarray, points: np.ndarray) -> _Cluster:
     """``cluster`` with the points ``fragment`` (indices) added, to its nearest member too."""
     members = list(cluster.members)
     if members:
         k = int(np.argmin([_gap(points[m.index], points[fragment], np.inf) for m in members]))
-        members[k] = _absorb(members[k], fragment, points, join_m)
+        members[k] = _absorb(members[k], fragment, points)
     return _Cluster(np.concatenate([cluster.index, fragment]), members)
 
 

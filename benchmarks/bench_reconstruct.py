@@ -1,6 +1,7 @@
 """Latent-only reconstruction (``jsrte reconstruct``) by Adam (DeepSDF's recipe) and by
 Levenberg–Marquardt, on held-out meshes of the evaluation seed set: F@5% against the
-normalized input (as ``jsrte evaluate-model``), solver seconds, iterations, decoder evaluations::
+normalized input (as ``jsrte evaluate-model``), solver seconds, iterations, decoder evaluations,
+with and without the training-code start (``--code-starts 0,1``)::
 
     .venv/bin/python benchmarks/bench_reconstruct.py --first 100 --meshes 5 --out runs/reconstruct.csv
 
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import statistics
 from pathlib import Path
 
@@ -24,6 +26,8 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=96)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--code-starts", default="1",
+                        help="Training-code starts beside the zero code; several, comma-separated, compared.")
     parser.add_argument("--out", required=True, help="CSV of per-mesh rows.")
     args = parser.parse_args()
 
@@ -41,24 +45,25 @@ def main() -> None:
     model = resolve_model(args.model)
     category = model.meta.get("data", {}).get("category", args.model)
     recipes = {"adam": LATENT_ONLY_ADAM, "gauss-newton": LATENT_ONLY_GAUSS_NEWTON}
+    code_starts = [int(v) for v in args.code_starts.split(",")]
     rows = []
     for i in range(args.first, args.first + args.meshes):
         canon = normalized(generate_shape(category, shape_seed(EVAL_SET_SEED, i)).mesh)
-        for solver in args.solvers.split(","):
+        for solver, starts in itertools.product(args.solvers.split(","), code_starts):
             report: dict = {}
             latent, _ = reconstruct_latent(model, canon, rng=np.random.default_rng(args.seed),
-                                           settings=recipes[solver], report=report)
+                                           settings=recipes[solver], code_starts=starts, report=report)
             pred = decode_mesh(model.decoder, latent, resolution=args.resolution).mesh
             score = fscore(pred, canon, rng=np.random.default_rng(args.seed)).fscore
-            rows.append({"shape": i, "solver": solver, "fscore": round(score, 4), **report})
+            rows.append({"shape": i, "solver": solver, "code_starts": starts, "fscore": round(score, 4), **report})
             print(rows[-1], flush=True)
             with Path(args.out).open("w", newline="") as f:
                 writer = csv.DictWriter(f, fieldnames=list(rows[0]))
                 writer.writeheader()
                 writer.writerows(rows)
-    for solver in args.solvers.split(","):
-        chosen = [r for r in rows if r["solver"] == solver]
-        print(f"{solver}: mean F@5% {statistics.mean(r['fscore'] for r in chosen):.3f}, "
+    for solver, starts in itertools.product(args.solvers.split(","), code_starts):
+        chosen = [r for r in rows if r["solver"] == solver and r["code_starts"] == starts]
+        print(f"{solver}, {starts} code start(s): mean F@5% {statistics.mean(r['fscore'] for r in chosen):.3f}, "
               f"mean {statistics.mean(r['seconds'] for r in chosen):.1f} s, "
               f"mean evaluations {statistics.mean(r['decoder_evaluations'] for r in chosen):,.0f}")
 

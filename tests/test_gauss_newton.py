@@ -256,16 +256,50 @@ def test_the_fast_gn_preset_as_shipped_recovers_a_known_transform(widening, wide
 
 
 class _TwoBasinSphereDecoder(torch.nn.Module):
-    """f(x, z) = |x| − r(z_0), r(c) = 0.5 + 0.1 c² − 0.01 c⁴: radius 0.5 at c = 0 (a local minimum
-    of r), rising to 0.75 at |c| = √5 and falling to 0.3 at |c| ≈ 3.42."""
+    """f(x, z) = |x| − k r(z_0), r(c) = 0.5 + 0.1 c² − 0.01 c⁴: radius 0.5 k at c = 0 (a local
+    minimum of r), rising to 0.75 k at |c| = √5 and falling to 0.3 k at |c| ≈ 3.42 (k = 1 unless given)."""
 
-    def __init__(self) -> None:
+    def __init__(self, k: float = 1.0) -> None:
         super().__init__()
+        self.k = k
         self.config = DecoderConfig(latent_size=1, hidden=8, depth=2, skip_layer=1)
 
     def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+        if codes.dim() == 1:
+            codes = codes.expand(len(points), -1)
         c = codes[:, 0]
-        return points.norm(dim=-1) - (0.5 + 0.1 * c**2 - 0.01 * c**4)
+        return points.norm(dim=-1) - self.k * (0.5 + 0.1 * c**2 - 0.01 * c**4)
+
+
+def test_latent_only_reconstruction_also_starts_from_the_nearest_training_code():
+    """A sphere, normalized to radius 1/1.03, seen by the two-basin model scaled by k = 2.5: from
+    the zero code Levenberg–Marquardt stays at radius 1.25 (a local minimum); the training code
+    whose surface is nearest the samples (3.5: radius 0.56, nearer than ±1 or −2) starts in the
+    basin of the true radius (c ≈ 3.32), and its start ends with the lower loss and wins."""
+    import trimesh
+
+    from jsrte.fit.reconstruct import LATENT_ONLY_GAUSS_NEWTON, nearest_codes, reconstruct_latent
+
+    model = DeepSdfModel(_TwoBasinSphereDecoder(k=2.5), torch.tensor([[-2.0], [-1.0], [1.0], [3.5]]),
+                         {"name": "two-basin"})
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=2.0)
+    settings = replace(LATENT_ONLY_GAUSS_NEWTON, clamp_canonical=None, iterations=30)
+
+    def radius(code_starts: int) -> tuple[float, dict]:
+        report: dict = {}
+        latent, _ = reconstruct_latent(model, mesh, rng=np.random.default_rng(0), settings=settings,
+                                       code_starts=code_starts, report=report)
+        c = float(latent[0])
+        return 2.5 * (0.5 + 0.1 * c**2 - 0.01 * c**4), report
+
+    alone, report = radius(0)
+    assert alone == pytest.approx(1.25, abs=0.01) and report["start"] == 0
+    started, report = radius(1)
+    assert started == pytest.approx(1 / 1.03, abs=0.005) and report["start"] == 1
+    sphere = SdfQuery(np.array([[0.5, 0.0, 0.0], [0.0, 0.9, 0.0]]), np.array([0.5 - 1 / 1.03, 0.9 - 1 / 1.03]),
+                      np.zeros((1, 3)))
+    nearest = nearest_codes(model, sphere, 2, clamp=None)[:, 0]
+    assert nearest[0] == 3.5 and abs(nearest[1]) == 1.0  # radius 0.56, then 1.48 (±1 alike)
 
 
 def test_code_restarts_leave_a_local_minimum_of_the_code_for_the_training_code_basin():

@@ -14,6 +14,7 @@ import argparse
 import csv
 import itertools
 import statistics
+from dataclasses import replace
 from pathlib import Path
 
 
@@ -28,6 +29,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--code-starts", default="1",
                         help="Training-code starts beside the zero code; several, comma-separated, compared.")
+    parser.add_argument("--prune-after", type=int, default=None,
+                        help="Keep only the start with the lowest loss after this many iterations.")
     parser.add_argument("--out", required=True, help="CSV of per-mesh rows.")
     args = parser.parse_args()
 
@@ -45,6 +48,8 @@ def main() -> None:
     model = resolve_model(args.model)
     category = model.meta.get("data", {}).get("category", args.model)
     recipes = {"adam": LATENT_ONLY_ADAM, "gauss-newton": LATENT_ONLY_GAUSS_NEWTON}
+    if args.prune_after is not None:
+        recipes = {name: replace(r, prune_after=args.prune_after, prune_keep=1) for name, r in recipes.items()}
     code_starts = [int(v) for v in args.code_starts.split(",")]
     rows = []
     for i in range(args.first, args.first + args.meshes):

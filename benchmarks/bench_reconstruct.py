@@ -31,6 +31,7 @@ def main() -> None:
                         help="Training-code starts beside the zero code; several, comma-separated, compared.")
     parser.add_argument("--prune-after", type=int, default=None,
                         help="Keep only the start with the lowest loss after this many iterations.")
+    parser.add_argument("--samples", type=int, default=None, help="Samples per iteration (default: the recipe's).")
     parser.add_argument("--out", required=True, help="CSV of per-mesh rows.")
     args = parser.parse_args()
 
@@ -50,6 +51,8 @@ def main() -> None:
     recipes = {"adam": LATENT_ONLY_ADAM, "gauss-newton": LATENT_ONLY_GAUSS_NEWTON}
     if args.prune_after is not None:
         recipes = {name: replace(r, prune_after=args.prune_after, prune_keep=1) for name, r in recipes.items()}
+    if args.samples is not None:
+        recipes = {name: replace(r, samples_per_iteration=args.samples) for name, r in recipes.items()}
     code_starts = [int(v) for v in args.code_starts.split(",")]
     rows = []
     for i in range(args.first, args.first + args.meshes):

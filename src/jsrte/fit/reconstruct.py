@@ -32,14 +32,14 @@ tables, both against keeping both starts on 8000 samples: mean F@5% 0.969 agains
 the decoder evaluations (docs/solver.md)."""
 
 LATENT_ONLY = LATENT_ONLY_GAUSS_NEWTON
-"""The recipe of ``jsrte reconstruct`` and ``jsrte evaluate-model``: Levenberg–Marquardt, at about a
-tenth of Adam's decoder evaluations with the same held-out F@5% (docs/solver.md)."""
+"""The recipe of ``jsrte reconstruct`` and ``jsrte evaluate-model``: Levenberg–Marquardt, at an eighth
+of Adam's decoder evaluations or less, with a better held-out F@5% (docs/solver.md)."""
 
 CODE_STARTS = 1
 """Besides the zero code, the solve starts from this many training codes (those whose surfaces
-match the samples best, :func:`nearest_codes`), all at once; the start ending with the lowest
-loss wins. From the zero code alone, Levenberg–Marquardt ends in a poor minimum on some shapes
-(F@5% 0.2 where another draw of samples gives 0.99; docs/models.md)."""
+match the samples best, :func:`nearest_codes`), all at once; the start with the lowest loss goes
+on (pruned as the recipe says). From the zero code alone, Levenberg–Marquardt ends in a poor
+minimum on some shapes (F@5% 0.2 where another draw of samples gives 0.99; docs/models.md)."""
 
 CODE_SCREEN_SAMPLES = 500
 """Samples on which every training code is scored for :data:`CODE_STARTS` (forward passes)."""
@@ -52,7 +52,7 @@ def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.ra
     """The latent code (d,) of ``mesh`` (canonical orientation), and its normalization.
 
     The solve starts from the zero code and from ``code_starts`` training codes
-    (:func:`nearest_codes`) at once, and the lowest final loss wins. ``progress``: a bar over
+    (:func:`nearest_codes`) at once; the lowest loss wins. ``progress``: a bar over
     the solver's iterations; ``report``, if given, receives the solver's iterations, decoder
     evaluations, seconds and the winning start (0: the zero code)."""
     norm = unit_sphere_normalization(mesh)
@@ -68,7 +68,7 @@ def reconstruct_latent(model: DeepSdfModel, mesh: trimesh.Trimesh, *, rng: np.ra
     fixed = frozenset(PARAMETER_NAMES) - {"latent"}
     out = minimize(model.decoder, query, inits, settings, fixed=fixed, prior=None,
                    generator=torch.Generator().manual_seed(int(rng.integers(2**31))), progress=progress)
-    winner = int(np.nanargmin(np.where(np.isfinite(out.losses), out.losses, np.nan)))
+    winner = int(np.argmin(np.nan_to_num(out.losses, nan=np.inf)))
     if report is not None:
         report.update(solver=settings.solver, iterations=out.iterations,
                       decoder_evaluations=out.evaluations + screened, seconds=round(out.seconds, 2),

@@ -103,7 +103,8 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
         typer.echo(f"skipped candidate {skip['candidate']}: {skip['points']} points, {skip['reason']}")
     for cover in scene.covered:
         typer.echo(f"set aside candidate {cover['candidate']}: {cover['points']} points, {cover['reason']}")
-    typer.echo(f"{len(scene.fitted)} object(s) fitted, {len(scene.objects) - len(scene.fitted)} failed, "
+    typer.echo(f"{len(scene.found)} object(s) fitted, {len(scene.fitted) - len(scene.found)} unexplained, "
+               f"{len(scene.objects) - len(scene.fitted)} failed, "
                f"{len(scene.skipped)} candidate(s) skipped, {len(scene.covered)} set aside; "
                f"wrote {out}/scene.json, scene.ply, overlay.png, objects/NN/")
 
@@ -112,8 +113,8 @@ def _scene_line(obj) -> str:  # noqa: ANN001
     """One line for an object of a scene: class, flag, scale, centre."""
     import numpy as np
 
-    if obj.result is None:
-        return f"object {obj.index:02d}: failed ({obj.reason}); {len(obj.points)} points"
+    if obj.status != "ok":
+        return f"object {obj.index:02d}: {obj.status} ({obj.reason}); {len(obj.points)} points"
     margin = (obj.class_choice or {}).get("margin")
     margin_text = "" if margin is None else f" (margin {margin:.3f})"
     return (f"object {obj.index:02d}: {obj.model}{margin_text}, flag {obj.result.flag}, "

@@ -148,13 +148,13 @@ def run_room(room: int, config: ScenesConfig, out: Path) -> list[dict]:
     except JsrteError as exc:  # no object left: every true object is missed
         scene, failure = None, str(exc)
     seconds = time.perf_counter() - started
-    fitted = [] if scene is None else scene.fitted
+    found_objects = [] if scene is None else scene.found  # unexplained objects are no detections
     if scene is not None:
         write_scene_outputs(scene, out / "fits" / f"{room:03d}", extra={"input": str(scan.resolve())})
-        failure = "; ".join(f"object {o.index}: {o.reason}" for o in scene.objects if o.status != "ok")
-    found = [FoundObject(o.index, o.model, _found_centre(o), o.result.flag) for o in fitted]
+        failure = "; ".join(f"object {o.index}: {o.reason}" for o in scene.objects if o.status == "failed")
+    found = [FoundObject(o.index, o.model, _found_centre(o), o.result.flag) for o in found_objects]
     rows = object_rows(truth, found)
-    by_index = {o.index: o for o in fitted}
+    by_index = {o.index: o for o in found_objects}
     rng = np.random.default_rng(config.seed)
     for row in rows:
         obj = by_index.get(row["found_index"])
@@ -163,7 +163,7 @@ def run_room(room: int, config: ScenesConfig, out: Path) -> list[dict]:
         if row["outcome"] == HIT:
             row.update(_truth_columns(obj.result, drawn.objects[row["true_index"]], rng))
     for row in rows:
-        row.update(room=room, seed=config.seed, scene_seconds=round(seconds, 2), objects_found=len(fitted),
+        row.update(room=room, seed=config.seed, scene_seconds=round(seconds, 2), objects_found=len(found_objects),
                    scene_error=failure)
     return [_ordered(r) for r in rows]
 

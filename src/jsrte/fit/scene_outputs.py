@@ -24,9 +24,10 @@ OTHER_COLORS = ((142, 68, 173), (22, 160, 133), (127, 140, 141), (211, 84, 0))
 @timed_stage("outputs")
 def write_scene_outputs(scene: SceneResult, out_dir: Path, *, extra: dict | None = None) -> list[Path]:
     """Write ``scene`` into ``out_dir`` (each file atomically; scene.json last): every fitted
-    object's files in ``objects/NN/`` (``jsrte.fit.outputs.write_fit_outputs``), ``scene.ply``
-    (every retrieved mesh in the scan's frame, coloured by class), ``overlay.png`` (the scan's
-    points and every mesh) and ``scene.json``. Returns the paths written."""
+    object's files in ``objects/NN/`` (``jsrte.fit.outputs.write_fit_outputs``; unexplained
+    objects' too), ``scene.ply`` (every found object's retrieved mesh in the scan's frame,
+    coloured by class), ``overlay.png`` (the scan's points and those meshes) and ``scene.json``.
+    Returns the paths written."""
     from jsrte.fit.outputs import write_fit_outputs
     from jsrte.geometry.mesh import save_mesh
     from jsrte.viz import render_overlay
@@ -46,7 +47,7 @@ def write_scene_outputs(scene: SceneResult, out_dir: Path, *, extra: dict | None
     if len(points) > OVERLAY_POINTS:
         points = points[np.random.default_rng(0).choice(len(points), OVERLAY_POINTS, replace=False)]
     render_overlay(mesh, points, out_dir / "overlay.png", up=up,
-                   title=f"{len(scene.fitted)} object(s): " + ", ".join(o.model or "?" for o in scene.fitted))
+                   title=f"{len(scene.found)} object(s): " + ", ".join(o.model or "?" for o in scene.found))
     written.append(out_dir / "overlay.png")
     write_json_atomic(out_dir / SCENE_NAME, scene.to_json() | (extra or {}))
     written.append(out_dir / SCENE_NAME)
@@ -54,11 +55,12 @@ def write_scene_outputs(scene: SceneResult, out_dir: Path, *, extra: dict | None
 
 
 def scene_mesh(scene: SceneResult) -> trimesh.Trimesh | None:
-    """Every retrieved mesh in the scan's frame as one mesh, its vertices coloured by the
-    object's class (:data:`CLASS_COLORS`); None when no fit has a mesh."""
+    """Every found object's retrieved mesh in the scan's frame as one mesh, its vertices coloured
+    by the object's class (:data:`CLASS_COLORS`); None when no fit has a mesh. Unexplained
+    objects are left out: their meshes are not what was scanned."""
     palette = dict(CLASS_COLORS)
     parts = []
-    for obj in scene.fitted:
+    for obj in scene.found:
         mesh = obj.result.mesh
         if mesh is None or not len(mesh.faces):
             continue

@@ -89,6 +89,38 @@ def test_initialization_from_floor_and_height(lshape_mesh):
     assert min(rotation_angle_deg(r, truth.R) for r in rotations) <= 15.0 + 1e-6
 
 
+def test_both_start_scales_where_height_and_sphere_disagree(lshape_mesh):
+    """An object 2.5 times taller, in its own units, than its class's mean shape: its height puts
+    the start at 1/2.5 of its scale, and a short fit from there stays far off. "both" adds the yaw
+    starts at the scale of the points' bounding sphere (here the whole surface: the true scale),
+    and the same fit recovers it; where the two scales agree it starts as "height" does."""
+    from jsrte.metrics.surface import bounding_sphere
+
+    truth, up = tilted_truth(theta=1.0)
+    query = make_query(lshape_mesh, truth, up, np.random.default_rng(3))
+    height = float(np.ptp(lshape_mesh.vertices[:, 1]))
+    radius = float(bounding_sphere(np.asarray(lshape_mesh.vertices))[1])
+    short = replace(SETTINGS, iterations=60, lr_decay_every=40, prune_again_after=None)
+    both = replace(short, init_scale="both")
+    inits = initial_hypotheses(query, ClassGeometry(height=2.5 * height, radius=radius), both)
+    assert len(inits) == 24
+    assert inits[0].scale == pytest.approx(truth.s / 2.5, rel=0.03)
+    assert inits[12].scale == pytest.approx(truth.s, rel=0.03)
+    agreeing = initial_hypotheses(query, ClassGeometry(height=height, radius=radius), both)
+    by_height = initial_hypotheses(query, ClassGeometry(height=height, radius=radius),
+                                   replace(short, init_scale="height"))
+    assert [(i.scale, i.theta) for i in agreeing] == [(i.scale, i.theta) for i in by_height]
+
+    tall_class = DeepSdfModel(LShapeDecoder(), torch.zeros(1, 4),
+                              {"name": "lshape", "canonical_height": 2.5 * height, "canonical_radius": radius})
+    from_height = fit_query(tall_class, query, replace(short, init_scale="height"), seed=0)
+    assert abs(from_height.transform.s / truth.s - 1.0) > 0.1
+    result = fit_query(tall_class, query, both, seed=0)
+    assert len(result.hypotheses) == 24
+    assert result.transform.s == pytest.approx(truth.s, rel=0.03)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 3.0
+
+
 def test_hypotheses_are_one_batch_not_a_loop(lshape):
     inits = [Init(1.0, 0.0, 0.0, t, np.zeros(3)) for t in theta_grid(30.0)]
     batch = HypothesisBatch(inits, 4, latent_init_std=0.01)

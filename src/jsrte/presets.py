@@ -66,7 +66,7 @@ def with_line_of_sight(settings: ScanSdf, on: bool | None = True) -> ScanSdf:
 
 
 LatentSpace = Literal["raw", "whitened"]
-InitScale = Literal["sphere", "height"]
+InitScale = Literal["sphere", "height", "both"]
 Selection = Literal["fscore", "loss"]
 Solver = Literal["adam", "gauss-newton"]
 AdamStage = Literal["never", "near-tie", "always"]
@@ -121,9 +121,15 @@ class FitSettings:
     scale (a fixed distance in scan units, as DeepSDF's reconstruction clamps at 0.1); None: no
     clamp. A clamp that shrank with the optimized s would let the loss vanish by shrinking s."""
     init_scale: InitScale = "sphere"
-    """How s0 and t0 come from the data: "sphere" (the paper: bounding sphere of the query) or
+    """How s0 and t0 come from the data: "sphere" (the paper: bounding sphere of the query),
     "height" (the object's height above the floor over the model's canonical height; robust to
-    partial scans)."""
+    partial scans), or "both": the yaw starts at the height's scale, and again at the sphere's
+    where the two disagree by more than ``init_scales_agree`` (the first pruning keeps the best
+    of all; an object whose proportions are far from its class's mean shape, a tall pedestal
+    table, is misjudged by its height)."""
+    init_scales_agree: float = 0.1
+    """With ``init_scale`` "both": the sphere's start is added only where the two scales differ
+    by more than this share (|ln(s_sphere / s_height)| > ln(1 + this))."""
     selection: Selection = "fscore"
     """Pick the winning hypothesis by "fscore" (the paper: F@5% of its decoded surface against
     the query points) or by "loss" (its final loss on ``eval_samples`` fixed samples: against a
@@ -294,6 +300,12 @@ take ``fast``'s last stage, 100 Adam steps on 1500 fresh samples each (40 at lr 
 and 20 more on 500 at lr 0.005, and the winner is the lowest loss on 4000 samples: about 0.51 M
 decoder evaluations in the solve (docs/solver.md)."""
 
+FAST_SCALES = Preset(name="fast-scales", scan_sdf=FAST.scan_sdf, fit=replace(FAST.fit, init_scale="both"))
+"""``fast``, its yaw starts also at the scale of the object's bounding sphere where that differs
+from its height's by more than 10% (24 starts instead of 12 there, each held near its own start
+scale by the scale prior; the same fit elsewhere): tables, sofas and beds vary in proportions
+far more than chairs, and a fit started at the wrong scale rarely recovers (docs/presets.md)."""
+
 SMOKE = Preset(
     name="smoke",
     fit=FitSettings(iterations=10, samples_per_iteration=500, selection="loss", extract_resolution=32,
@@ -305,6 +317,7 @@ PRESETS: dict[str, Preset] = {
     "paper": PAPER,
     "fast": FAST,
     "fast-gn": FAST_GAUSS_NEWTON,
+    "fast-scales": FAST_SCALES,
     "smoke": SMOKE,
 }
 DEFAULT_PRESET = "fast"

@@ -67,12 +67,26 @@ def scale_and_translation(query: SdfQuery, geometry: ClassGeometry, up: np.ndarr
 def initial_hypotheses(query: SdfQuery, geometry: ClassGeometry, settings: FitSettings, *,
                        n_hypotheses: int | None = None,
                        latent: np.ndarray | None = None) -> list[Init]:
-    """One ``Init`` per yaw of the θ grid, all sharing s0, t0 and the up axis."""
+    """One ``Init`` per yaw of the θ grid and per start scale (:func:`start_scales`), all
+    sharing the up axis."""
     up = CANONICAL_UP if query.up is None else np.asarray(query.up, float) / np.linalg.norm(query.up)
     base = rotation_between(CANONICAL_UP, up)
     psi, rho = spherical_from_axis(up)
-    s0, t0 = scale_and_translation(query, geometry, up, settings.init_scale)
-    s0 = float(np.clip(s0, settings.scale_min, settings.scale_max))
-    return [Init(scale=s0, psi=psi, rho=rho, theta=float(theta), translation=t0, latent=latent,
-                 base_rotation=base)
+    return [Init(scale=float(np.clip(s0, settings.scale_min, settings.scale_max)), psi=psi, rho=rho,
+                 theta=float(theta), translation=t0, latent=latent, base_rotation=base)
+            for s0, t0 in start_scales(query, geometry, up, settings)
             for theta in theta_grid(settings.theta_grid_deg, n_hypotheses)]
+
+
+def start_scales(query: SdfQuery, geometry: ClassGeometry, up: np.ndarray,
+                 settings: FitSettings) -> list[tuple[float, np.ndarray]]:
+    """The (s0, t0 (3,)) pairs the yaw starts begin from: one of ``settings.init_scale``; with
+    "both", the height's, then the sphere's where the two scales differ by more than
+    ``settings.init_scales_agree``."""
+    if settings.init_scale != "both":
+        return [scale_and_translation(query, geometry, up, settings.init_scale)]
+    by_height = scale_and_translation(query, geometry, up, "height")
+    by_sphere = scale_and_translation(query, geometry, up, "sphere")
+    if abs(np.log(by_sphere[0] / by_height[0])) <= np.log1p(settings.init_scales_agree):
+        return [by_height]
+    return [by_height, by_sphere]

@@ -79,9 +79,10 @@ def latent_penalty(settings: FitSettings, *, n_surface: int) -> float:
 def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
                       *, clamp: float | None, latent_penalty: float,
                       lower_bound: torch.Tensor | None = None,
-                      scale_prior: tuple[float, float] = (0.0, 1.0)) -> torch.Tensor:
+                      scale_prior: tuple[float, float | None] = (0.0, 1.0)) -> torch.Tensor:
     """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖code‖²
-    [+ w s0 ln(s/s0)² with ``scale_prior`` = (w, s0)].
+    [+ w s0 ln(s/s0)² with ``scale_prior`` = (w, s0); s0 None: each hypothesis's own initial
+    scale, ``batch.start_scale``].
 
     ``points`` (K, 3) and ``sdf`` (K,) in scan units, shared by all hypotheses; the code is z
     (the paper) or the whitened w of a :class:`LatentPrior`. Where ``lower_bound`` (K,) bool is
@@ -102,6 +103,7 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
     loss = data_term + latent_penalty * batch.code.to(torch.float32).pow(2).sum(dim=1)
     weight, start = scale_prior
     if weight:
+        start = batch.start_scale.to(torch.float32) if start is None else start
         loss = loss + weight * start * torch.log(batch.scale.to(torch.float32) / start).pow(2)
     return loss
 
@@ -123,9 +125,11 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     batch = new_batch(decoder, inits, settings, fixed=fixed, generator=generator, prior=prior)
     device = decoder_device(decoder)
     clamp = loss_clamp(settings, inits)
-    s0 = float(np.median([i.scale for i in inits]))
+    starts = [i.scale for i in inits]
+    s0 = float(np.median(starts))
     penalty = latent_penalty(settings, n_surface=len(query.surface)) * (s0 if prior is not None else 1.0)
-    scale_prior = (settings.scale_prior, s0)
+    # the scale prior holds each hypothesis near its own start where they start at several scales
+    scale_prior = (settings.scale_prior, s0 if len(set(starts)) == 1 else None)
     points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
     sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
     lower = None if query.lower_bound is None else torch.as_tensor(query.lower_bound, device=device)

@@ -110,6 +110,7 @@ class HypothesisBatch(torch.nn.Module):
         self.register_buffer("prior_factor", None if prior is None else torch.as_tensor(prior.factor, dtype=f64))
         base = [np.eye(3) if i.base_rotation is None else np.asarray(i.base_rotation, float) for i in inits]
         self.register_buffer("base_rotation", torch.tensor(np.array(base), dtype=f64))
+        self.register_buffer("start_scale", torch.tensor([float(i.scale) for i in inits], dtype=f64))
 
     def __len__(self) -> int:
         return int(self.scale.shape[0])
@@ -142,6 +143,7 @@ class HypothesisBatch(torch.nn.Module):
             kept = old.detach()[index.to(old.device)].clone()
             setattr(self, name, torch.nn.Parameter(kept, requires_grad=old.requires_grad))
         self.base_rotation = self.base_rotation[index.to(self.base_rotation.device)]
+        self.start_scale = self.start_scale[index.to(self.start_scale.device)]
 
     def transform(self, h: int) -> Sim3:
         """``scan_from_canonical`` of hypothesis ``h``."""

@@ -41,3 +41,19 @@ def test_the_final_losses_rank_an_equal_fit_nearer_the_start_first():
     expected = [0.05 * 2.0 * math.log(s / 2.0) ** 2 for s in (1.0, 3.0)]
     np.testing.assert_allclose(result.losses, expected, atol=1e-6)
     assert result.losses[1] < result.losses[0]  # 3 is nearer 2 than 1 is, on a log scale
+
+
+def test_starting_at_two_scales_each_hypothesis_is_held_near_its_own():
+    """With ``init_scale`` "both" the yaws start at two scales; the prior then holds each
+    hypothesis near its own start, so the two exact fits at s = 1 and s = 3 pay no prior at all
+    (about the median, 2, they would pay 0.05 · 2 · ln(s/2)² each)."""
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(2000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    radii = rng.uniform(0.7, 1.3, size=2000)
+    query = SdfQuery(directions * radii[:, None], radii - 1.0, directions)
+    settings = replace(FAST.fit, iterations=0, prune_after=None, latent_space="raw", latent_penalty=0.0,
+                       clamp_canonical=None, scale_prior=0.05, init_scale="both")
+    inits = [Init(s, 0.0, 0.0, 0.0, np.zeros(3), latent=np.array([1.0 / s, 0.0])) for s in (1.0, 3.0)]
+    result = optimize(SphereDecoder(r0=0.0), query, inits, settings, generator=torch.Generator().manual_seed(0))
+    np.testing.assert_allclose(result.losses, [0.0, 0.0], atol=1e-6)

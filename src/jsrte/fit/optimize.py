@@ -128,8 +128,9 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     starts = [i.scale for i in inits]
     s0 = float(np.median(starts))
     penalty = latent_penalty(settings, n_surface=len(query.surface)) * (s0 if prior is not None else 1.0)
-    # the scale prior holds each hypothesis near its own start where they start at several scales
-    scale_prior = (settings.scale_prior, s0 if len(set(starts)) == 1 else None)
+    # starting at two scales ("both"), each hypothesis is held near its own start scale
+    own_start = settings.init_scale == "both" and len(set(starts)) > 1
+    scale_prior = (settings.scale_prior, None if own_start else s0)
     points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
     sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
     lower = None if query.lower_bound is None else torch.as_tensor(query.lower_bound, device=device)

@@ -25,15 +25,20 @@ def test_the_penalty_is_w_s0_log_ratio_squared(scale):
     assert float((held - plain)[0].detach()) == pytest.approx(0.2 * 1.0 * math.log(scale) ** 2, abs=1e-6)
 
 
-def test_the_final_losses_rank_an_equal_fit_nearer_the_start_first():
-    """A sphere of radius 1 is s (|x|/s − r) for every s with s r = 1: two hypotheses fit it
-    exactly at s = 1 and s = 3. The fit's final losses (what picks the winner) differ by the
-    prior alone, about s0 = the median initial scale (2)."""
+def unit_sphere_query() -> SdfQuery:
+    """Exact SDF samples of the unit sphere: 2000 points at radii 0.7-1.3, surface points on it."""
     rng = np.random.default_rng(0)
     directions = rng.normal(size=(2000, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     radii = rng.uniform(0.7, 1.3, size=2000)
-    query = SdfQuery(directions * radii[:, None], radii - 1.0, directions)
+    return SdfQuery(directions * radii[:, None], radii - 1.0, directions)
+
+
+def test_the_final_losses_rank_an_equal_fit_nearer_the_start_first():
+    """A sphere of radius 1 is s (|x|/s − r) for every s with s r = 1: two hypotheses fit it
+    exactly at s = 1 and s = 3. The fit's final losses (what picks the winner) differ by the
+    prior alone, about s0 = the median initial scale (2)."""
+    query = unit_sphere_query()
     settings = replace(FAST.fit, iterations=0, prune_after=None, latent_space="raw", latent_penalty=0.0,
                        clamp_canonical=None, scale_prior=0.05)
     inits = [Init(s, 0.0, 0.0, 0.0, np.zeros(3), latent=np.array([1.0 / s, 0.0])) for s in (1.0, 3.0)]
@@ -47,11 +52,7 @@ def test_starting_at_two_scales_each_hypothesis_is_held_near_its_own():
     """With ``init_scale`` "both" the yaws start at two scales; the prior then holds each
     hypothesis near its own start, so the two exact fits at s = 1 and s = 3 pay no prior at all
     (about the median, 2, they would pay 0.05 · 2 · ln(s/2)² each)."""
-    rng = np.random.default_rng(0)
-    directions = rng.normal(size=(2000, 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    radii = rng.uniform(0.7, 1.3, size=2000)
-    query = SdfQuery(directions * radii[:, None], radii - 1.0, directions)
+    query = unit_sphere_query()
     settings = replace(FAST.fit, iterations=0, prune_after=None, latent_space="raw", latent_penalty=0.0,
                        clamp_canonical=None, scale_prior=0.05, init_scale="both")
     inits = [Init(s, 0.0, 0.0, 0.0, np.zeros(3), latent=np.array([1.0 / s, 0.0])) for s in (1.0, 3.0)]

@@ -151,8 +151,9 @@ class FitSettings:
     bounds the SDF from below (one-sided loss), so samples nearer than the clamp count too."""
     scale_prior: float = 0.0
     """Beyond the paper: weight w of a penalty w s0 ln(s/s0)^2 that holds s near its start s0 (the
-    median initial scale; with ``init_scale`` "both" and two start scales, each hypothesis's own;
-    s0 makes it scan-unit like the data term); 0: none."""
+    median initial scale; in the Adam fit with ``init_scale`` "both" and two start scales, each
+    hypothesis's own (Levenberg–Marquardt keeps the median); s0 makes it scan-unit like the data
+    term); 0: none."""
     line_of_sight_before_pruning: bool = False
     """Draw a query's line-of-sight samples (its refine-only tail) from the first iteration, not
     only once the hypotheses are pruned."""

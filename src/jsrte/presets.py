@@ -323,6 +323,10 @@ PRESETS: dict[str, Preset] = {
     "smoke": SMOKE,
 }
 DEFAULT_PRESET = "fast"
+SCENE_PRESET = "fast-scales"
+"""The default of a whole scene (``jsrte fit --scene``, ``fit_scene``, ``jsrte experiment scenes``):
+a room's beds, sofas and tables vary in proportions, and each full fit also starts at its
+points' scale (docs/clutter.md, "Whole scenes")."""
 
 def get_preset(name: str) -> Preset:
     """Return the preset called ``name``; raises KeyError listing the known names."""

@@ -9,7 +9,7 @@ import typer
 from jsrte.cli.common import check_out_folder, check_threads, set_threads
 from jsrte.cli.experiment_cmd import experiment_app
 from jsrte.errors import JsrteError
-from jsrte.presets import PRESETS
+from jsrte.presets import PRESETS, SCENE_PRESET
 
 
 @experiment_app.command("scenes", short_help="Rooms of 3-6 held-out objects and 1-3 walls, each fitted whole "
@@ -25,7 +25,7 @@ def scenes_command(
                                             "object gives too few views to find its floor)."),
     model: str = typer.Option("auto", help="The models each object's class is chosen among: auto (every shipped "
                                            "model) or a comma-separated list."),
-    preset: str = typer.Option("fast", help=f"Fit preset: {', '.join(PRESETS)}."),
+    preset: str = typer.Option(SCENE_PRESET, help=f"Fit preset: {', '.join(PRESETS)}."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     jobs: int = typer.Option(1, help="Rooms run in this many processes at once (threads shared among them)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),

@@ -23,7 +23,7 @@ def fit_command(
     model: str = typer.Option(None, help=opt.MODEL.help + " Default: chair; auto with --scene."),
     scene: bool = typer.Option(False, "--scene", help="Fit every object standing on the floor, each with its "
                                                       "class (docs/clutter.md)."),
-    preset: str = opt.PRESET, up: str = opt.UP, viewpoint: list[str] = opt.VIEWPOINT,
+    preset: str = opt.SCENE_OR_FIT_PRESET, up: str = opt.UP, viewpoint: list[str] = opt.VIEWPOINT,
     line_of_sight: bool = opt.LINE_OF_SIGHT, free_axis: bool = opt.FREE_AXIS, at: str = opt.AT,
     hypotheses: int = opt.HYPOTHESES, seed: int = opt.SEED, device: str = opt.DEVICE,
     units_check: bool = opt.UNITS_CHECK,
@@ -35,7 +35,9 @@ def fit_command(
     from jsrte.atomic import output_dir
     from jsrte.fit import fit
     from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs
+    from jsrte.presets import DEFAULT_PRESET, SCENE_PRESET
 
+    preset = preset or (SCENE_PRESET if scene else DEFAULT_PRESET)
     options = opt.fit_options(preset=preset, up=up, viewpoint=viewpoint, line_of_sight=line_of_sight,
                               free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, device=device,
                               units_check=units_check)

@@ -34,6 +34,7 @@ from jsrte.experiments.scene_scoring import (
     fit_quality,
     object_rows,
 )
+from jsrte.presets import SCENE_PRESET
 from jsrte.scans.scene import SceneSettings, VirtualRoom
 
 ROOM_SETTINGS = SceneSettings(frame_all=True, front_clearance_deg=60.0, behind_clearance_deg=60.0,
@@ -60,7 +61,7 @@ class ScenesConfig:
     rooms: int = 20
     first: int = 0
     seed: int = 0
-    preset: str = "fast"
+    preset: str = SCENE_PRESET
     model: str = "auto"
     objects: tuple[int, int] = OBJECTS
     box_share: float = BOX_SHARE

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -32,8 +32,9 @@ import numpy as np
 
 from jsrte.errors import JsrteError
 from jsrte.fit.query import SdfQuery
-from jsrte.fit.screen import Choice, Screened, ScreenSettings
+from jsrte.fit.screen import CLASS_FIT, SCREEN_FIT, Choice, Screened, ScreenSettings
 from jsrte.options import FitOptions
+from jsrte.presets import SCENE_PRESET
 from jsrte.result import FitResult
 from jsrte.scans.segment import SegmentSettings
 
@@ -151,6 +152,15 @@ rooms (100-129 of seed 0) every cut between two objects touching each other scor
 less; cuts within one object ran from 0.0007 to 0.02."""
 
 
+SCENE_SCREEN = ScreenSettings(fit=replace(SCREEN_FIT, init_scale="both"),
+                              class_fit=replace(CLASS_FIT, init_scale="both"))
+"""The quick fits of a scene's candidates: every yaw starts at the height's scale and, where it
+differs by more than 10%, at the bounding sphere's too (``FitSettings.init_scale`` "both"), the
+forward-pass screen keeping the best four of all. Beds, sofas and tables vary in proportions far
+more than chairs; a bed's quick fit started from its height alone can end far off, and the
+judgement then cuts the bed into pieces."""
+
+
 PART_EXPLAINED = 0.05
 """A part of a split whose best screen score is at most this is explained well by some class
 (on the tuning rooms: 0.005-0.04 on parts that are most of one object; 0.07-0.1 on a wall's
@@ -168,7 +178,7 @@ false detections 0.0 or 0.67 and more."""
 
 
 def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions | None = None,
-              screen: ScreenSettings = ScreenSettings(), progress: bool = False, workers: int = 1,
+              screen: ScreenSettings = SCENE_SCREEN, progress: bool = False, workers: int = 1,
               **changes: object) -> SceneResult:
     """Fit every object standing on the floor of the scan at ``path``.
 
@@ -177,7 +187,8 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     path : a scan (PLY/PCD/XYZ, metres, floor found or ``up`` given)
     model : the models the class is chosen among (as ``jsrte.fit.fit``: "auto" for every
         shipped model, "chair,table", a list, or one model: then no class is chosen)
-    options : how to fit (``FitOptions``; ``at`` is refused: a scene fits every object)
+    options : how to fit (``FitOptions``, default preset :data:`jsrte.presets.SCENE_PRESET`; ``at``
+        is refused: a scene fits every object)
     screen : how the class of each object is screened and each split judged
     progress : show each fit's progress bar (one object at a time only)
     workers : objects screened and fitted at once, each in a thread of its own with one PyTorch
@@ -191,7 +202,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     from jsrte.fit.query import class_shape, scan_candidates
     from jsrte.timing import stage
 
-    options = (options or FitOptions()).changed(**changes)
+    options = (options or FitOptions(preset=SCENE_PRESET)).changed(**changes)
     if options.at is not None:
         raise JsrteError("--scene fits every object; --at picks one (give one or the other)", path)
     with stage("load"):
@@ -257,8 +268,9 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     its whole and its parts (``jsrte.fit.screen.split_or_whole``): a candidate scores its best
     class's screen score, and the whole's best fit must lie at most ``whole_explains`` times
     as far from the points of every part some model explains well (a screen score of at most
-    :data:`PART_EXPLAINED`; where none is, from its best part, maybe a part of a part) as that
-    part's own best fit (``jsrte.fit.screen.explained_ratio``, each fit by its own model). A
+    :data:`PART_EXPLAINED`, and from its best part, maybe a part of a part; a part judged to hold
+    several objects counts as those of them some model explains well, or as itself where none
+    is) as that part's own best fit (``jsrte.fit.screen.explained_ratio``, each fit by its own model). A
     single object's split asks it of the best part only; a scene keeps every part, and a table
     fitted to a table and the chair beside it explains the table's points well but not the
     chair's. ``screened``: candidate position -> its screens (or why it has none: a whole that
@@ -268,9 +280,11 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     def best(k: int) -> Screened:
         return min(screened[k].screened, key=lambda s: s.score)
 
-    def explains(whole: int, best_part: int) -> float:
-        parts = [p for p in candidates[whole].parts
-                 if p == best_part or best(p).score <= PART_EXPLAINED] or [best_part]
+    def explains(whole: int, best_part: int, objects: list[list[int]]) -> float:
+        parts = {best_part}
+        for part, stands_for in zip(candidates[whole].parts, objects, strict=True):
+            explained = [o for o in stands_for if best(o).score <= PART_EXPLAINED]
+            parts.update(explained or ([part] if best(part).score <= PART_EXPLAINED else []))
         by_whole = best(whole)
         return max(explained_ratio(models[by_whole.model], by_whole, best(p), settings, seed,
                                    part_model=models[best(p).model]) for p in parts)

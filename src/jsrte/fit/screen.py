@@ -515,16 +515,19 @@ def split_or_whole(candidates: list, scores: dict[int, float], explains: object 
     - its score is at most its parts' (their scores weighted by their points, a part split
       again counting as it was judged) plus ``whole_margin``: the whole's fit explains its
       points as well as the parts' fits explain theirs; and
-    - ``explains(whole, part)`` (how much farther the whole's fitted surface lies from the
-      part's points than the part's own, :func:`explained_ratio`) is at most
+    - ``explains(whole, part, objects)`` (how much farther the whole's fitted surface lies
+      from the part's points than the part's own, :func:`explained_ratio`) is at most
       ``whole_explains`` for the part that would be chosen in its stead (its best-scored
       part, or that part's best when covered by it): a chair beside a box fitted as one is
-      a poor chair; a bed fitted whole is as good a bed at the mattress as the mattress alone;
+      a poor chair; a bed fitted whole is as good a bed at the mattress as the mattress alone.
+      ``objects``: per part, the candidates it stands for as judged (itself, or the objects
+      of a part judged to hold several), for a judgement that asks it of more than one part;
 
     else the whole is covered by its parts (it holds several objects)."""
     covered: set[int] = set()
     judged: dict[int, float] = {}
     best_of: dict[int, int] = {}
+    held: dict[int, list[int]] = {}
 
     def covers(whole: int) -> None:
         for part in candidates[whole].parts:
@@ -541,13 +544,14 @@ def split_or_whole(candidates: list, scores: dict[int, float], explains: object 
         total = sum(len(candidates[p].index) for p in parts)
         split = sum(len(candidates[p].index) / total * judged.get(p, scores[p]) for p in parts)
         best = min((best_of.get(p, p) for p in parts), key=scores.__getitem__)
+        objects = [held.get(p, [p]) for p in parts]
         whole = scores[k] <= split + settings.whole_margin and (
-            explains is None or explains(k, best) <= settings.whole_explains)
+            explains is None or explains(k, best, objects) <= settings.whole_explains)
         if whole:
-            judged[k], best_of[k] = scores[k], k
+            judged[k], best_of[k], held[k] = scores[k], k, [k]
             covers(k)
         else:
-            judged[k], best_of[k] = split, best
+            judged[k], best_of[k], held[k] = split, best, [o for held_by_part in objects for o in held_by_part]
             covered.add(k)
     return covered
 
@@ -580,7 +584,7 @@ def _covered(cands: object, screened: list[Screened], model: DeepSdfModel, setti
     (:func:`split_or_whole`)."""
     by_candidate = {s.candidate: s for s in screened}
 
-    def explains(whole: int, part: int) -> float:
+    def explains(whole: int, part: int, objects: list[list[int]]) -> float:
         return explained_ratio(model, by_candidate[whole], by_candidate[part], settings, seed)
 
     return split_or_whole(cands.segmentation.candidates, {k: s.score for k, s in by_candidate.items()}, explains,

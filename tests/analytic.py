@@ -159,3 +159,20 @@ def tilted_truth(theta: float):
     up /= np.linalg.norm(up)
     rotation = axis_angle_matrix(up, theta) @ rotation_between([0, 1, 0], up)
     return Sim3(1.7, rotation, np.array([2.0, -1.0, 0.5])), up
+
+
+def tall_class_case(mesh, factor: float = 2.5):
+    """An object ``factor`` times taller, in its own units, than its class's mean shape (a class
+    whose shapes vary in proportions): a query of the L-shape ``mesh`` under a tilted known
+    transform, and an L-shape model whose recorded mean height is ``factor`` times the mesh's.
+    Returns (query, truth Sim3, model, the mesh's height, its bounding-sphere radius)."""
+    from jsrte.metrics.surface import bounding_sphere
+    from jsrte.model.checkpoint import DeepSdfModel
+
+    truth, up = tilted_truth(theta=1.0)
+    query = make_query(mesh, truth, up, np.random.default_rng(3))
+    height = float(np.ptp(mesh.vertices[:, 1]))
+    radius = float(bounding_sphere(np.asarray(mesh.vertices))[1])
+    model = DeepSdfModel(LShapeDecoder(), torch.zeros(1, 4),
+                         {"name": "lshape", "canonical_height": factor * height, "canonical_radius": radius})
+    return query, truth, model, height, radius

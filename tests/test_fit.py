@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from analytic import LShapeDecoder, make_query, tilted_truth
+from analytic import LShapeDecoder, make_query, tall_class_case, tilted_truth
 from jsrte.fit.init import ClassGeometry, initial_hypotheses, theta_grid
 from jsrte.fit.optimize import SampleDrawer, _adam, _prune, hypothesis_losses, optimize
 from jsrte.fit.params import HypothesisBatch, Init
@@ -94,12 +94,7 @@ def test_both_start_scales_where_height_and_sphere_disagree(lshape_mesh):
     the start at 1/2.5 of its scale, and a short fit from there stays far off. "both" adds the yaw
     starts at the scale of the points' bounding sphere (here the whole surface: the true scale),
     and the same fit recovers it; where the two scales agree it starts as "height" does."""
-    from jsrte.metrics.surface import bounding_sphere
-
-    truth, up = tilted_truth(theta=1.0)
-    query = make_query(lshape_mesh, truth, up, np.random.default_rng(3))
-    height = float(np.ptp(lshape_mesh.vertices[:, 1]))
-    radius = float(bounding_sphere(np.asarray(lshape_mesh.vertices))[1])
+    query, truth, tall_class, height, radius = tall_class_case(lshape_mesh, factor=2.5)
     short = replace(SETTINGS, iterations=60, lr_decay_every=40, prune_again_after=None)
     both = replace(short, init_scale="both")
     inits = initial_hypotheses(query, ClassGeometry(height=2.5 * height, radius=radius), both)
@@ -111,8 +106,6 @@ def test_both_start_scales_where_height_and_sphere_disagree(lshape_mesh):
                                    replace(short, init_scale="height"))
     assert [(i.scale, i.theta) for i in agreeing] == [(i.scale, i.theta) for i in by_height]
 
-    tall_class = DeepSdfModel(LShapeDecoder(), torch.zeros(1, 4),
-                              {"name": "lshape", "canonical_height": 2.5 * height, "canonical_radius": radius})
     from_height = fit_query(tall_class, query, replace(short, init_scale="height"), seed=0)
     assert abs(from_height.transform.s / truth.s - 1.0) > 0.1
     result = fit_query(tall_class, query, both, seed=0)

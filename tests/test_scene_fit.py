@@ -218,22 +218,65 @@ def test_a_scene_screens_each_candidate_from_both_start_scales():
     bounding sphere, and its quick fit finds the scale and explains the points better."""
     import torch
 
-    from analytic import LShapeDecoder, make_query, tilted_truth
+    from analytic import LShapeDecoder, tall_class_case
     from jsrte.fit.scene import SCENE_SCREEN
     from jsrte.fit.screen import ScreenSettings, screen
-    from jsrte.metrics.surface import bounding_sphere
-    from jsrte.model.checkpoint import DeepSdfModel
     from jsrte.model.meshing import decode_mesh
 
     mesh = decode_mesh(LShapeDecoder(), torch.zeros(4), resolution=48).mesh
-    truth, up = tilted_truth(theta=1.0)
-    query = make_query(mesh, truth, up, np.random.default_rng(3))
-    height = float(np.ptp(mesh.vertices[:, 1]))
-    radius = float(bounding_sphere(np.asarray(mesh.vertices))[1])
-    tall_class = DeepSdfModel(LShapeDecoder(), torch.zeros(1, 4),
-                              {"name": "lshape", "canonical_height": 2.5 * height, "canonical_radius": radius})
+    query, truth, tall_class, _, _ = tall_class_case(mesh, factor=2.5)
     by_height = screen(tall_class, "lshape", query, None, ScreenSettings(), seed=0)
     by_both = screen(tall_class, "lshape", query, None, SCENE_SCREEN, seed=0)
     assert abs(by_height.result.transform.s / truth.s - 1.0) > 0.1
     assert by_both.result.transform.s == pytest.approx(truth.s, rel=0.05)
     assert by_both.score < by_height.score
+
+
+class _Candidate:
+    def __init__(self, points: int, parts: list[int] | None = None, parent: int | None = None):
+        self.index, self.parts, self.parent, self.rejected = np.arange(points), parts or [], parent, None
+
+
+def _screens(scores: dict[int, float]) -> dict:
+    """Candidate -> a Choice holding one screen of model "m" with that score."""
+    from jsrte.fit.screen import Choice, Screened
+
+    return {k: Choice(query=None, model=None, classes={"m": s},
+                      screened=[Screened("m", k, None, None, s, {})]) for k, s in scores.items()}
+
+
+def test_a_scene_asks_a_whole_about_every_part_some_class_explains(monkeypatch):
+    """A whole's fit must explain the points of each of its parts that some class explains well
+    (screen score <= PART_EXPLAINED); a part judged to hold several objects stands for those of
+    them that are explained, or for itself where none of them is."""
+    from importlib import import_module
+
+    from jsrte.fit.scene import PART_EXPLAINED, SCENE_SCREEN, judge_splits
+
+    screen = import_module("jsrte.fit.screen")  # jsrte.fit is also the function
+    # 0 = 1 + 2, 1 = 3 + 4 (the split's tree, most points first)
+    tree = [_Candidate(1000, [1, 2]), _Candidate(600, [3, 4], 0), _Candidate(400, parent=0),
+            _Candidate(400, parent=1), _Candidate(200, parent=1)]
+    asked: list[tuple[int, int]] = []
+
+    def ratio_of(ratios: dict[tuple[int, int], float]):
+        def explained_ratio(model, whole, part, settings, seed, part_model=None):
+            asked.append((whole.candidate, part.candidate))
+            return ratios.get((whole.candidate, part.candidate), 1.0)
+        return explained_ratio
+
+    # a chair (3) and a wall's remnant (4) no class explains, split from a table (2): 1's fit is
+    # asked about the chair only; 1 is judged two objects, and 0's fit is then asked about the
+    # chair (what 1 stands for that is explained) and the table, never about 1 or 4; it explains
+    # the chair poorly, so the chair, the remnant and the table are three candidates
+    monkeypatch.setattr(screen, "explained_ratio", ratio_of({(1, 3): 3.0, (0, 3): 3.0}))
+    scores = {0: 0.02, 1: 0.02, 2: 0.02, 3: 0.01, 4: 2 * PART_EXPLAINED}
+    covered = judge_splits(tree, _screens(scores), {"m": None}, SCENE_SCREEN, 0)
+    assert covered == {0, 1} and sorted(set(asked)) == [(0, 2), (0, 3), (1, 3)]
+    # neither piece of 1 is explained, but 1 is: 0's fit is asked about 1 itself and about 2;
+    # it explains both, so 0 is one object covering every part
+    asked.clear()
+    monkeypatch.setattr(screen, "explained_ratio", ratio_of({(1, 3): 3.0}))
+    scores = {0: 0.02, 1: 0.02, 2: 0.02, 3: 2 * PART_EXPLAINED, 4: 2 * PART_EXPLAINED}
+    covered = judge_splits(tree, _screens(scores), {"m": None}, SCENE_SCREEN, 0)
+    assert covered == {1, 2, 3, 4} and sorted(set(asked)) == [(0, 1), (0, 2), (1, 3)]

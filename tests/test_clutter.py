@@ -238,6 +238,21 @@ def test_a_table_top_seen_apart_from_its_legs_rests_on_them(with_class):
     assert any((c.index >= table_points).all() for c in valid)  # the box stays apart
 
 
+def test_a_piece_of_a_wall_is_no_candidate():
+    """A patch of a vertical plane, 0.8 m tall and 0.7 m wide with 3 mm of depth noise (a wall
+    seen too little to be found as one), is rejected; a 0.5 m cube beside it stays a candidate,
+    and so does a board of the patch's size 10 cm deep."""
+    rng = np.random.default_rng(0)
+    patch = np.column_stack([rng.uniform(-0.35, 0.35, 3000), rng.uniform(0.0, 0.8, 3000),
+                             rng.normal(0.0, 0.003, 3000)])
+    cube = _surface_points(box((0.5, 0.5, 0.5)), 3000, 2) + [1.5, 0.0, 0.0]
+    slab = _surface_points(box((0.7, 0.8, 0.1)), 3000, 3) + [-1.5, 0.0, 0.0]
+    points = np.concatenate([patch, cube, slab])
+    result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0))
+    by_first = {int(c.index.min()) // 3000: c.rejected for c in result.candidates}
+    assert by_first[0].startswith("a wall's piece") and by_first[1] == "" and by_first[2] == ""
+
+
 def _chair_beside_box() -> tuple[np.ndarray, np.ndarray]:
     """Surface points (4000, 3) of a stand-in chair, and those plus 2000 of a box 3 cm beside it."""
     chair = stand_in_chair()

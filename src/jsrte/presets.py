@@ -149,6 +149,12 @@ class FitSettings:
     below_floor_depth: tuple[float, float] = (1.5, 4.0)
     """Their depth under the floor, in units of the loss's clamp (uniform in this range). Each
     bounds the SDF from below (one-sided loss), so samples nearer than the clamp count too."""
+    size_margin: float | None = None
+    """Beyond the paper: where the model knows its class's sizes (``jsrte.model.sizes``: its
+    training shapes', in metres), the scale s stays within them widened by this factor each way
+    (from the smallest over the margin to the largest times it; the starts too): a table model
+    fitted to a bed cannot grow to the bed's size. The scan must be in metres. None: s anywhere
+    in ``scale_min``..``scale_max``."""
     scale_prior: float = 0.0
     """Beyond the paper: weight w of a penalty w s0 ln(s/s0)^2 that holds s near its start s0 (the
     median initial scale; in the Adam fit with ``init_scale`` "both" and two start scales, each
@@ -308,6 +314,11 @@ from its height's by more than 10% (24 starts instead of 12 there, each held nea
 scale by the scale prior; the same fit elsewhere): tables, sofas and beds vary in proportions
 far more than chairs, and a fit started at the wrong scale rarely recovers (docs/presets.md)."""
 
+SIZED = Preset(name="sized", scan_sdf=FAST.scan_sdf, fit=replace(FAST_SCALES.fit, size_margin=1.2))
+"""``fast-scales``, each class held to its own sizes (those of its training shapes, from 1/1.2 of
+the smallest to 1.2 times the largest; ``FitSettings.size_margin``): a table model cannot
+explain a bed at twice any table's size. Scans in metres only (docs/presets.md)."""
+
 SMOKE = Preset(
     name="smoke",
     fit=FitSettings(iterations=10, samples_per_iteration=500, selection="loss", extract_resolution=32,
@@ -320,6 +331,7 @@ PRESETS: dict[str, Preset] = {
     "fast": FAST,
     "fast-gn": FAST_GAUSS_NEWTON,
     "fast-scales": FAST_SCALES,
+    "sized": SIZED,
     "smoke": SMOKE,
 }
 DEFAULT_PRESET = "fast"

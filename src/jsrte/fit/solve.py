@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -42,6 +43,18 @@ def class_geometry(model: DeepSdfModel) -> ClassGeometry:
     return ClassGeometry(height=float(meta["canonical_height"]), radius=float(meta["canonical_radius"]))
 
 
+def sized(model: DeepSdfModel, settings: FitSettings) -> FitSettings:
+    """``settings`` with the scale bounds narrowed to the model's class sizes widened by
+    ``settings.size_margin`` (``jsrte.model.sizes``), where both are known."""
+    from jsrte.model.sizes import model_sizes
+
+    sizes = None if settings.size_margin is None else model_sizes(model.meta)
+    if sizes is None:
+        return settings
+    lo, hi = sizes.bounds(settings.size_margin)
+    return replace(settings, scale_min=max(settings.scale_min, lo), scale_max=min(settings.scale_max, hi))
+
+
 def latent_prior(model: DeepSdfModel, settings: FitSettings) -> LatentPrior | None:
     """The training codes' Gaussian when ``settings.latent_space`` is "whitened", else None."""
     if settings.latent_space == "raw":
@@ -76,6 +89,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     at their start (default: ψ and ρ when the query knows its up axis and ``settings.hold_axis``).
     """
     started = time.perf_counter()
+    settings = sized(model, settings)
     if fixed is None:
         fixed = AXIS_PARAMETERS if settings.hold_axis and query.up is not None else frozenset()
     decoder = model.decoder

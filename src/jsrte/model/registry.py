@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from jsrte.errors import JsrteError
-from jsrte.model.checkpoint import DeepSdfModel, load_model, read_metadata
+from jsrte.model.checkpoint import DeepSdfModel, file_hash, load_model, read_metadata
 
 PRETRAINED_DIR = Path(__file__).parent / "pretrained"
 
@@ -38,11 +38,17 @@ def resolve_model(name_or_path: str | Path) -> DeepSdfModel:
 
 def describe_models() -> list[dict]:
     """Metadata summaries of the shipped models (for ``jsrte models``)."""
+    from dataclasses import asdict
+
+    from jsrte.model.sizes import model_sizes
+
     rows = []
     for name, path in shipped_models().items():
         meta = read_metadata(path)
+        sizes = model_sizes(meta | {"name": name, "sha256": file_hash(path)})
         rows.append({"name": name, "category": meta.get("category"), "shapes": meta.get("n_shapes"),
                      "architecture": meta.get("arch"), "latent_size": meta["architecture"]["latent_size"],
                      "size_kb": round(path.stat().st_size / 1024, 1),
+                     "sizes_m": None if sizes is None else asdict(sizes),
                      "metrics": meta.get("metrics", {}), "path": str(path)})
     return rows

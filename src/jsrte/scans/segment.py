@@ -473,9 +473,9 @@ def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarr
         if parent[k] is not None:
             candidates[position[k]].parent = position[parent[k]]
             candidates[position[parent[k]]].parts.append(position[k])
-    for c in candidates:
+    for c in (c for c in candidates if c.parent is None and not c.parts and not c.rejected):
         depth = _vertical_depth(points[c.index], up)
-        if c.parent is None and not c.parts and not c.rejected and depth < s.min_depth_m:
+        if depth < s.min_depth_m:
             c.rejected = f"a wall's piece ({100 * depth:.1f} cm deep < {100 * s.min_depth_m:.1f} cm)"
     return candidates
 

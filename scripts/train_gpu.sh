@@ -3,8 +3,9 @@
 # shipped models were made; docs/models.md). Each class samples its procedural training set on
 # a share of the CPU cores, then trains under torchrun on the GPU; the classes share the GPU.
 #
-#   scripts/train_gpu.sh OUT_DIR SHAPES STEPS CLASS [CLASS ...]
+#   [ARCH=NAME] scripts/train_gpu.sh OUT_DIR SHAPES STEPS CLASS [CLASS ...]
 #
+# ARCH: the decoder architecture (`jsrte train --arch`; default cpu, the shipped models' network).
 # Writes OUT_DIR/<class>/ (run folder: model.safetensors, train_log.csv, train_state, data/).
 # Runs where `python3 -m jsrte.cli` works (an installed jsrte, or PYTHONPATH=src with its
 # dependencies). Batch: 32 shapes x 4096 points per step (DeepSDF's size is 64 x 16384).
@@ -19,7 +20,7 @@ mkdir -p "$out"
 pids=()
 for c in "${classes[@]}"; do
   python3 -m torch.distributed.run --standalone --nproc_per_node=1 -m jsrte.cli train \
-    --category "$c" --name "$c" --shapes "$shapes" --steps "$steps" --batch-shapes 32 --points 4096 \
+    --category "$c" --name "$c" --arch "${ARCH:-cpu}" --shapes "$shapes" --steps "$steps" --batch-shapes 32 --points 4096 \
     --checkpoint-every 500 --threads "$threads" --no-progress --out "$out/$c" >"$out/$c.log" 2>&1 &
   pids+=($!)
 done

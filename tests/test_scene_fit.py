@@ -301,3 +301,33 @@ def test_a_preset_that_holds_each_class_to_its_sizes_holds_the_quick_fits_too(ro
     scene_module.fit_scene(room_scan, model="chair,table", preset="sized")
     assert len(margins) >= 4 and set(margins) == {1.2}  # each candidate by each class, then the full fits
     assert scene_module.SCENE_SCREEN.fit.size_margin is None  # the default holds nothing
+
+
+def test_an_object_outside_its_class_sizes_is_recorded_but_not_found():
+    """A fit whose radius lies outside its class's sizes widened by SIZE_MARGIN (a table model
+    stretched over a bed) is unexplained, its size in the reason; inside them, or with a model
+    that records no sizes, it stays an object."""
+    from types import SimpleNamespace
+
+    from jsrte.fit.scene import SIZE_MARGIN, SceneObject, _mark_unexplained
+    from jsrte.model.sizes import ClassSizes
+
+    table_sizes = ClassSizes(smallest=0.40, median=0.80, largest=1.30, shapes=200).__dict__
+    models = {"table": SimpleNamespace(meta={"name": "mine", "sizes_m": table_sizes}),
+              "plain": SimpleNamespace(meta={"name": "mine"})}
+
+    def fitted(model: str, radius: float, share: float = 0.95) -> SceneObject:
+        result = SimpleNamespace(quality={"inlier_share": share}, transform=SimpleNamespace(s=radius))
+        obj = SceneObject(0, 0, np.zeros((10, 3)), model=model, result=result)
+        _mark_unexplained(obj, models)
+        return obj
+
+    too_big = fitted("table", 1.30 * SIZE_MARGIN * 1.05)
+    assert too_big.status == "unexplained" and "no table of its size" in too_big.reason
+    assert f"{1.30 * SIZE_MARGIN * 1.05:.2f} m" in too_big.reason
+    assert fitted("table", 0.40 / SIZE_MARGIN * 0.95).status == "unexplained"
+    for radius in (0.40 / SIZE_MARGIN * 1.01, 0.8, 1.30 * SIZE_MARGIN * 0.99):
+        assert fitted("table", radius).status == "ok"
+    assert fitted("plain", 25.0).status == "ok"  # no sizes recorded: not checked
+    empty = fitted("table", 5.0, share=0.1)  # the share is judged first
+    assert empty.status == "unexplained" and "lies on 10% of its points" in empty.reason

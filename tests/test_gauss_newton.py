@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from analytic import LShapeDecoder, WideningLShapeDecoder, make_query, octahedron_query, tilted_truth
+from analytic import LShapeDecoder, WideningLShapeDecoder, make_query, tilted_truth
 from jsrte.errors import JsrteError
 from jsrte.fit.gauss_newton import (
     Linearization,
@@ -606,57 +606,3 @@ def test_only_the_contenders_take_the_adam_stage(widening, widened_mesh):
     assert out.evaluation_parts["adam stage"] == 60 * 1 * 1000
     assert len(out.survivors) == 1 and len(out.pruned_losses) == 1
     assert set(out.pruned_losses) | set(out.survivors.tolist()) == {0, 1}
-
-
-class _MeanWidthDecoder(WideningLShapeDecoder):
-    """A pose network that knows only the mean shape: the widening L-shape at code 0, whatever z."""
-
-    def forward(self, points: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
-        return super().forward(points, torch.zeros_like(codes))
-
-
-def test_a_cheaper_pose_network_places_the_hypotheses_and_the_model_finishes_the_shape(widening, widened_mesh):
-    """The pose network's code changes nothing, so its hypotheses end at the right pose with no
-    shape. The model takes over there: of its four training widths the one that made the scan
-    (z_0 = 0.3) fits best at each survivor's pose (each of 4 codes scored on 200 samples), and its
-    own Levenberg–Marquardt iterations and Adam stage keep it; the returned batch is the model's."""
-    from jsrte.fit.gauss_newton import ShapeStage
-
-    truth, up = tilted_truth(theta=2.2)
-    query = make_query(widened_mesh, truth, up, np.random.default_rng(0))
-    codes = torch.tensor([[-0.3, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.6, 0.0, 0.0]], dtype=torch.float64)
-    settings = replace(SETTINGS, pose_handover_samples=200, pose_handover_iterations=3, adam_stage="always",
-                       adam_stage_iterations=20, adam_stage_samples=1000)
-    inits = initial_hypotheses(query, ClassGeometry(height=1.5, radius=0.95), settings)
-    out = solve(_MeanWidthDecoder(), query, inits, settings, fixed=frozenset({"psi", "rho"}),
-                generator=torch.Generator().manual_seed(0), shape=ShapeStage(widening.decoder, codes, None))
-    best = int(np.argmin(out.losses))
-    assert out.batch.transform(best).s == pytest.approx(truth.s, rel=0.02)
-    assert rotation_angle_deg(out.batch.transform(best).R, truth.R) < 2.0
-    assert out.batch.latent[best, 0].item() == pytest.approx(0.3, abs=0.02)
-    n = len(out.survivors)
-    assert out.evaluation_parts["hand-over"] >= n * 4 * 200 + n * 1000  # scoring, then at least one iteration
-    assert out.evaluation_parts["adam stage"] == n * 20 * 1000
-
-    # without the hand-over the pose network's code stays where its penalty leaves it
-    alone = solve(_MeanWidthDecoder(), query, inits, settings, fixed=frozenset({"psi", "rho"}),
-                  generator=torch.Generator().manual_seed(0))
-    assert abs(alone.batch.latent[int(np.argmin(alone.losses)), 0].item()) < 0.05
-
-
-def test_a_pose_model_of_other_training_shapes_is_refused(tmp_path):
-    """``pose_model`` must share the model's training shapes (as many codes of the same size)."""
-    from jsrte.errors import JsrteError
-    from jsrte.model.checkpoint import save_model
-
-    config = DecoderConfig(latent_size=3, hidden=8, depth=2, skip_layer=1)
-    model = DeepSdfModel(Decoder(config), torch.zeros(5, 3), {"name": "m", "canonical_height": 1.0,
-                                                             "canonical_radius": 1.0})
-    save_model(DeepSdfModel(Decoder(config), torch.zeros(4, 3), {"name": "other"}), tmp_path / "pose.safetensors")
-    settings = replace(SETTINGS, pose_model=str(tmp_path / "pose.safetensors"))
-    query = octahedron_query()
-    with pytest.raises(JsrteError, match="not trained on the same shapes"):
-        fit_query(model, query, settings)
-    with pytest.raises(JsrteError, match="needs the gauss-newton solver"):
-        fit_query(model, query, replace(settings, solver="adam"))
-

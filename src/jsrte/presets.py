@@ -243,21 +243,6 @@ class FitSettings:
     adam_stage_decay_after: int = 40
     adam_stage_samples: int = 1500
     """Samples of each of its steps."""
-    pose_model: str | None = None
-    """Gauss–Newton: a cheaper network of the same class trained on the same shapes (a shipped
-    name or a model file) runs the starts, the translation search and the Levenberg–Marquardt
-    iterations; the fit's own model takes over at the poses it found, each survivor from the
-    training code that fits best there (``pose_handover_samples`` samples), for the Adam stage,
-    the polish, the comparison and the mesh (fit.gauss_newton.hand_over). None: one network."""
-    pose_handover_samples: int = 200
-    """Samples on which every training code is scored at the hand-over."""
-    pose_handover_translation_search: bool = False
-    """The model itself repeats the translation search (``translation_search``) at the hand-over."""
-    pose_handover_iterations: int = 0
-    """Levenberg–Marquardt iterations of the fit's own model right after the hand-over, before
-    the Adam stage."""
-    pose_handover_lm_samples: int | None = None
-    """Samples those iterations are taken on, drawn afresh; None: the solve's last sample set."""
     refine_iterations: int = 0
     """Gauss–Newton: after the Adam stage, at most this many Levenberg–Marquardt iterations on
     every survivor (the solve's last sample set) settle the code where the stage left it; 0: none."""

@@ -271,7 +271,7 @@ def screen_yaws(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, problem: 
 def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
           fixed: frozenset[str] = frozenset(), generator: torch.Generator,
           prior: LatentPrior | None = None, progress: bool = False,
-          trace: list[dict[int, float]] | None = None, shape: ShapeStage | None = None) -> Optimized:
+          trace: list[dict[int, float]] | None = None) -> Optimized:
     """Minimize every hypothesis's objective by Levenberg–Marquardt, as one batch.
 
     ``settings.iterations`` bounds the iterations (each one decoder pass with its backward over
@@ -282,9 +282,6 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     A hypothesis whose objective or system turns NaN/inf is dropped (``Optimized.failed``);
     if all are, a JsrteError. ``trace``, if given, receives each iteration's objective of every
     hypothesis still in the batch (by initial index), for studying pruning schedules.
-    With ``shape``, ``decoder`` is a cheaper network of the same class that places the
-    hypotheses; ``shape``'s decoder takes over after the Levenberg–Marquardt iterations
-    (:func:`hand_over`) for the Adam stage, the polish and the final losses.
     """
     start = time.perf_counter()
     batch = new_batch(decoder, inits, settings, fixed=fixed, generator=generator, prior=prior)
@@ -373,21 +370,6 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     objective = lin.objective
     if len(set(survivors.tolist())) < len(survivors):
         survivors, objective = _best_copies(batch, survivors, objective)
-    if shape is not None:
-        batch, n = hand_over(batch, [inits[i] for i in survivors], shape, problem_of, settings,
-                             fixed=fixed, generator=generator)
-        count("hand-over", n)
-        decoder = shape.decoder
-        whitening = None if shape.prior is None else (batch.prior_mean, batch.prior_factor)
-        if settings.pose_handover_translation_search and settings.translation_search and "translation" not in fixed:
-            p, n = _translation_search(decoder, pack(batch), batch.base_rotation, problem_of, whitening, settings)
-            unpack_into(batch, p)
-            count("hand-over", n)
-        if settings.pose_handover_iterations:
-            if settings.pose_handover_lm_samples is not None:
-                problem = problem_of(settings.pose_handover_lm_samples)
-            count("hand-over", _refine(decoder, batch, problem, whitening, free, settings,
-                                       iterations=settings.pose_handover_iterations))
     if adam_stage_due(batch, objective, settings):
         if settings.adam_stage_contenders_only:
             survivors, objective = _contenders_only(batch, survivors, objective, pruned, settings.adam_stage_margin)
@@ -401,40 +383,6 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     count("final losses", len(batch) * min(settings.eval_samples, len(sdf)))
     return Optimized(batch, final, survivors, pruned, iterations, sum(parts.values()), time.perf_counter() - start,
                      failed=failed, evaluation_parts=parts)
-
-
-@dataclass(frozen=True)
-class ShapeStage:
-    """The network that finishes a solve whose hypotheses a cheaper one placed (same training
-    shapes, same latent size): its decoder, its training codes (n, d) and their prior (None:
-    raw codes)."""
-
-    decoder: Decoder
-    codes: torch.Tensor
-    prior: LatentPrior | None
-
-
-def hand_over(batch: HypothesisBatch, inits: list[Init], shape: ShapeStage, problem_of: ProblemDrawer,
-              settings: FitSettings, *, fixed: frozenset[str], generator: torch.Generator
-              ) -> tuple[HypothesisBatch, int]:
-    """A batch of ``shape``'s network at the poses of ``batch`` (H hypotheses, started from
-    ``inits``, H of them), each hypothesis's code the one of ``shape``'s training codes with the
-    lowest objective at its pose (forward passes on ``pose_handover_samples`` samples).
-    Returns the batch and the decoder evaluations spent."""
-    new = new_batch(shape.decoder, inits, settings, fixed=fixed, generator=generator, prior=shape.prior)
-    p = pack(new)
-    p[:, :N_POSE] = pack(batch)[:, :N_POSE]
-    evaluations = 0
-    if "latent" not in fixed:
-        whitening = None if shape.prior is None else (new.prior_mean, new.prior_factor)
-        codes = shape.codes.to(p) if shape.prior is None else whitened_codes(new, shape.prior, p.device)
-        screen = problem_of(settings.pose_handover_samples)
-        for h in range(len(p)):
-            scores = score_codes(shape.decoder, p[h], new.base_rotation[h], codes, screen, whitening)
-            p[h, N_POSE:] = codes[int(torch.argmin(scores))]
-        evaluations = len(p) * len(codes) * len(screen.sdf)
-    unpack_into(new, p)
-    return new, evaluations
 
 
 def lm_iteration(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, lin: Linearization, damping: torch.Tensor,
@@ -467,11 +415,10 @@ def lm_iteration(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, lin: Lin
 
 
 def _refine(decoder: Decoder, batch: HypothesisBatch, problem: Problem,
-            whitening: tuple[torch.Tensor, torch.Tensor] | None, free: torch.Tensor, settings: FitSettings, *,
-            iterations: int | None = None) -> int:
-    """At most ``iterations`` (default ``settings.refine_iterations``) Levenberg–Marquardt
-    iterations on ``batch`` (in place) on ``problem``'s samples; a hypothesis whose system turns
-    non-finite keeps its parameters. Returns the decoder evaluations."""
+            whitening: tuple[torch.Tensor, torch.Tensor] | None, free: torch.Tensor, settings: FitSettings) -> int:
+    """At most ``settings.refine_iterations`` Levenberg–Marquardt iterations on ``batch`` (in
+    place) on ``problem``'s samples, after the Adam stage; a hypothesis whose system turns
+    non-finite keeps the Adam stage's parameters. Returns the decoder evaluations."""
     p, base = pack(batch), batch.base_rotation
     lin = linearize(decoder, p, base, problem, whitening, free)
     evaluations = len(p) * len(problem.sdf)
@@ -479,7 +426,7 @@ def _refine(decoder: Decoder, batch: HypothesisBatch, problem: Problem,
         torch.isfinite(lin.gradient).all(1)
     damping = torch.full((len(p),), settings.damping, dtype=torch.float64, device=p.device)
     moving = finite.clone()
-    for _ in range(settings.refine_iterations if iterations is None else iterations):
+    for _ in range(settings.refine_iterations):
         if not bool(moving.any()):
             break
         evaluations += lm_iteration(decoder, p, base, lin, damping, moving, problem, whitening, free, settings)
@@ -562,7 +509,7 @@ def whitened_codes(batch: HypothesisBatch, prior: LatentPrior, device: torch.dev
 
 
 def score_codes(decoder: Decoder, p_row: torch.Tensor, base_row: torch.Tensor, codes: torch.Tensor,
-                screen: Problem, whitening: tuple[torch.Tensor, torch.Tensor] | None) -> torch.Tensor:
+                screen: Problem, whitening: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
     """Forward passes only: the objective (n,) of the hypothesis p_row (7 + d,) (base rotation
     base_row (3, 3)) with its code replaced by each of ``codes`` (n, d), on ``screen``'s samples;
     a non-finite objective scores inf."""

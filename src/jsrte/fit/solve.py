@@ -64,38 +64,16 @@ def latent_prior(model: DeepSdfModel, settings: FitSettings) -> LatentPrior | No
     return LatentPrior.of_codes(model.codes.detach().cpu().numpy(), shrinkage=settings.latent_prior_shrinkage)
 
 
-def pose_network(model: DeepSdfModel, settings: FitSettings) -> DeepSdfModel | None:
-    """The network that places the hypotheses (``settings.pose_model``) when it is not the model
-    itself: "shipped" is the pose network shipped for the model's class where it shares the
-    model's training set (else None: one network); JsrteError if a named one does not."""
-    if settings.pose_model is None:
-        return None
-    if settings.solver != "gauss-newton":
-        raise JsrteError(f"pose_model needs the gauss-newton solver, not {settings.solver!r}")
-    from jsrte.model.registry import resolve_model, same_training_shapes, shipped_pose_model
-
-    if settings.pose_model == "shipped":
-        pose = shipped_pose_model(model)
-    else:
-        pose = resolve_model(settings.pose_model)
-        pose.meta["name"] = str(settings.pose_model)
-        if not same_training_shapes(pose, model):
-            raise JsrteError(f"the pose model {settings.pose_model!r} ({len(pose.codes)} codes) and the model "
-                             f"{model.name!r} ({len(model.codes)}) were not trained on the same shapes")
-    return None if pose is None else pose.to(str(model.codes.device))
-
-
 def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
              fixed: frozenset[str], generator: torch.Generator, prior: LatentPrior | None,
-             progress: bool = False, shape: object | None = None) -> Optimized:
+             progress: bool = False) -> Optimized:
     """Minimize every hypothesis's objective with ``settings.solver``: Adam (fit.optimize) or
-    Levenberg–Marquardt (fit.gauss_newton; ``shape``: the fit.gauss_newton.ShapeStage that
-    finishes a solve ``decoder`` started)."""
+    Levenberg–Marquardt (fit.gauss_newton)."""
     if settings.solver == "gauss-newton":
         from jsrte.fit.gauss_newton import solve
 
         return solve(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
-                     progress=progress, shape=shape)
+                     progress=progress)
     return optimize(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
                     progress=progress)
 
@@ -124,17 +102,9 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     if settings.below_floor_samples and clamp is not None:
         query = with_below_floor_samples(query, settings.below_floor_samples, clamp=clamp,
                                          rng=np.random.default_rng(seed), depth=settings.below_floor_depth)
-    pose = pose_network(model, settings)
     with stage("solve"):
-        if pose is None:
-            result = minimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
-                              prior=latent_prior(model, settings), progress=progress)
-        else:
-            from jsrte.fit.gauss_newton import ShapeStage
-
-            shape = ShapeStage(decoder, model.codes.detach().to(torch.float64), latent_prior(model, settings))
-            result = minimize(pose.decoder, query, inits, settings, fixed=fixed, generator=generator,
-                              prior=latent_prior(pose, settings), progress=progress, shape=shape)
+        result = minimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
+                          prior=latent_prior(model, settings), progress=progress)
     t_opt = time.perf_counter() - started
     _check_finite(result)
     reports = _reports(result, inits)
@@ -153,7 +123,6 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         info={"decoder_evaluations": result.evaluations, "iterations": result.iterations,
               "fixed_parameters": sorted(fixed), "below_floor_samples": len(query.sdf) - n_query,
               "latent_space": settings.latent_space, "solver": settings.solver,
-              "pose_model": None if pose is None else pose.name,
               "failed_hypotheses": {str(i): why for i, why in sorted(result.failed.items())},
               "winner_hypothesis": int(result.survivors[winner])},
     )

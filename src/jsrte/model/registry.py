@@ -8,9 +8,6 @@ from jsrte.errors import JsrteError
 from jsrte.model.checkpoint import DeepSdfModel, file_hash, load_model, read_metadata
 
 PRETRAINED_DIR = Path(__file__).parent / "pretrained"
-POSE_DIR = PRETRAINED_DIR / "pose"
-"""Each shipped class's pose network: a narrower decoder trained on the same shapes
-(``FitSettings.pose_model``)."""
 
 
 def shipped_models() -> dict[str, Path]:
@@ -55,23 +52,3 @@ def describe_models() -> list[dict]:
                      "sizes_m": None if sizes is None else asdict(sizes),
                      "metrics": meta.get("metrics", {}), "path": str(path)})
     return rows
-
-
-def same_training_shapes(a: DeepSdfModel, b: DeepSdfModel) -> bool:
-    """Whether two models' codes stand for the same training shapes: as many codes of one size,
-    and the same training set where both record theirs (metadata "data")."""
-    if tuple(a.codes.shape) != tuple(b.codes.shape):
-        return False
-    data_a, data_b = a.meta.get("data"), b.meta.get("data")
-    return data_a is None or data_b is None or data_a == data_b
-
-
-def shipped_pose_model(model: DeepSdfModel) -> DeepSdfModel | None:
-    """The pose network shipped for ``model``'s class (``POSE_DIR``) if one is and it was trained
-    on ``model``'s own training set (both record it); else None."""
-    path = POSE_DIR / f"{model.meta.get('category')}.safetensors"
-    if not path.is_file() or model.meta.get("data") is None:
-        return None
-    pose = load_model(path)
-    pose.meta["name"] = f"pose/{path.stem}"
-    return pose if same_training_shapes(pose, model) else None

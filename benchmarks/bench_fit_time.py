@@ -12,6 +12,9 @@ is scored too (outside the timed process), as ``jsrte experiment scans`` scores 
 
     PYTHONPATH=src .venv/bin/python benchmarks/bench_fit_time.py SCAN.ply ... \\
         [--preset fast,paper] [--model chair] [--threads 2] [--out docs/speed_table.md]
+
+A preset may name the decoder arithmetic after a colon (``fast:float32``, as ``jsrte fit
+--dtype``): ``--preset fast:float32,fast`` compares float32 with the preset's own.
 """
 
 from __future__ import annotations
@@ -41,7 +44,8 @@ def fit_one(scan: Path, *, preset: str, model: str, seed: int, threads: int) -> 
 
     torch.set_num_threads(threads)
     with profiling() as profile, tempfile.TemporaryDirectory() as folder:
-        result = fit(scan, model=model, preset=preset, seed=seed)
+        name, _, dtype = preset.partition(":")
+        result = fit(scan, model=model, preset=name, seed=seed, dtype=dtype or None)
         with stage("outputs"):
             write_fit_outputs(result, Path(folder), query_points=load_scan(scan).points,
                               up=result.info.get("up"), extra={"input": str(scan)})
@@ -154,7 +158,8 @@ def _accuracy(reports: dict[str, list[dict]]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scans", type=Path, nargs="+", help="scans to fit (PLY with JSON sidecar, PCD, ...)")
-    parser.add_argument("--preset", default="fast", help="preset(s), comma-separated: side-by-side columns")
+    parser.add_argument("--preset", default="fast", help="preset(s), comma-separated: side-by-side columns; "
+                                                          "PRESET:DTYPE sets the decoder arithmetic (fast:float32)")
     parser.add_argument("--model", default="chair", help="shipped model name or model file")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2, help="torch threads (the machine's 2 cores)")

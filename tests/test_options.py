@@ -18,7 +18,8 @@ def test_vectors_of_any_kind_become_checked_tuples():
     assert hash(options)  # frozen and hashable: it travels to fit-many's workers as it is
     for bad, message in [({"up": (0, 0, 0)}, "non-zero"), ({"at": (1, 2)}, "three finite"),
                          ({"viewpoints": [(0, 0, np.nan)]}, "three finite"), ({"hypotheses": 0}, "positive"),
-                         ({"preset": "quick"}, "unknown preset 'quick'; known: paper, fast")]:
+                         ({"preset": "quick"}, "unknown preset 'quick'; known: paper, fast"),
+                         ({"dtype": "half"}, "unknown dtype 'half'; known: float32, bfloat16, auto")]:
         with pytest.raises(JsrteError, match=message):
             FitOptions(**bad)
     with pytest.raises(JsrteError, match="unknown fit option hypothesis; known: preset, up"):
@@ -31,6 +32,22 @@ def test_settings_apply_line_of_sight_and_free_axis_to_the_preset():
     assert FitOptions(line_of_sight=False).settings().scan_sdf.n_ray_freespace == 0
     assert FitOptions(preset="paper", line_of_sight=True).settings().scan_sdf.n_ray_freespace == LINE_OF_SIGHT_SAMPLES
     assert fast.fit.hold_axis and not FitOptions(free_axis=True).settings().fit.hold_axis
+    assert fast.fit.decoder_dtype == "auto" and get_preset("paper").fit.decoder_dtype == "float32"
+    assert FitOptions(dtype="float32").settings().fit.decoder_dtype == "float32"
+    assert FitOptions(preset="paper", dtype="bfloat16").settings().fit.decoder_dtype == "bfloat16"
+
+
+def test_the_dtype_flag_is_checked_and_recorded(run_cli, tmp_path):
+    """``jsrte fit --dtype``: a bad value is a one-line error; fit.json records the arithmetic used."""
+    from jsrte.fit.query import save_query
+
+    query_file = tmp_path / "q.npz"
+    save_query(octahedron_query(), query_file)
+    code, _, err = run_cli(["fit", str(query_file), "--dtype", "half", "--out", str(tmp_path / "bad")])
+    assert code == 2 and "--dtype must be one of float32, bfloat16, auto, got 'half'" in err
+    assert not (tmp_path / "bad").exists()
+    result = jsrte.fit(octahedron_query(), model=octahedron_model(), preset="smoke", hypotheses=1, dtype="bfloat16")
+    assert result.info["decoder_dtype"] == "bfloat16" and result.info["options"]["dtype"] == "bfloat16"
 
 
 def test_options_by_object_or_by_name_fit_alike():
@@ -53,7 +70,7 @@ def test_every_fit_option_is_a_flag_of_fit_and_fit_many_and_the_query_ones_of_pr
     commands = typer.main.get_command(app).commands  # type: ignore[attr-defined]
     flag = {"viewpoints": "viewpoint"}  # repeatable: one flag per viewpoint
     every = {flag.get(f.name, f.name) for f in fields(FitOptions)}
-    query_only = every - {"hypotheses", "free_axis", "device"}  # prepare: the fit-time ones go to jsrte fit
+    query_only = every - {"hypotheses", "free_axis", "device", "dtype"}  # prepare: the fit-time ones go to jsrte fit
     for name, wanted in (("fit", every), ("fit-many", every), ("prepare", query_only)):
         params = {p.name for p in commands[name].params}
         assert wanted <= params, (name, wanted - params)

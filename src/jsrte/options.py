@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, fields, replace
 from typing import TYPE_CHECKING
 
 from jsrte.errors import JsrteError
-from jsrte.presets import DEFAULT_PRESET, PRESETS
+from jsrte.presets import DECODER_DTYPES, DEFAULT_PRESET, PRESETS
 
 if TYPE_CHECKING:
     from jsrte.presets import Preset
@@ -41,6 +41,8 @@ class FitOptions:
     seed : seeds every random choice (the same seed gives the same fit)
     device : where the decoder runs ("cpu", "cuda", "cuda:1"; None: where the model is)
     units_check : refuse a scan whose object is implausibly large or small for metres
+    dtype : the decoder's arithmetic while the hypotheses move ("auto", "float32", "bfloat16";
+        None: the preset's, ``FitSettings.decoder_dtype``)
     """
 
     preset: str = DEFAULT_PRESET
@@ -53,6 +55,7 @@ class FitOptions:
     seed: int = 0
     device: str | None = None
     units_check: bool = True
+    dtype: str | None = None
 
     def __post_init__(self) -> None:
         """Check every option once: vectors (any sequence or array) become finite float tuples,
@@ -74,15 +77,19 @@ class FitOptions:
             object.__setattr__(self, "device", str(self.device))  # a torch.device is welcome too
         if self.preset not in PRESETS:
             raise JsrteError(f"unknown preset {self.preset!r}; known: {', '.join(PRESETS)}")
+        if self.dtype is not None and self.dtype not in DECODER_DTYPES:
+            raise JsrteError(f"unknown dtype {self.dtype!r}; known: {', '.join(DECODER_DTYPES)}")
 
     def settings(self) -> Preset:
-        """The preset with these options applied (line of sight, free axis)."""
+        """The preset with these options applied (line of sight, free axis, dtype)."""
         from jsrte.presets import get_preset, with_line_of_sight
 
         preset = get_preset(self.preset)
         preset = replace(preset, scan_sdf=with_line_of_sight(preset.scan_sdf, self.line_of_sight))
         if self.free_axis:
             preset = replace(preset, fit=replace(preset.fit, hold_axis=False))
+        if self.dtype is not None:
+            preset = replace(preset, fit=replace(preset.fit, decoder_dtype=self.dtype))
         return preset
 
     def record(self) -> dict[str, object]:

@@ -23,7 +23,7 @@ def fit_many_command(
     viewpoint: list[str] = opt.VIEWPOINT, line_of_sight: bool = opt.LINE_OF_SIGHT,
     free_axis: bool = opt.FREE_AXIS, at: str = opt.AT, hypotheses: int = opt.HYPOTHESES,
     seed: int = typer.Option(0, help="Random seed (the same for every scan, as jsrte fit)."),
-    device: str = opt.DEVICE, units_check: bool = opt.UNITS_CHECK,
+    device: str = opt.DEVICE, units_check: bool = opt.UNITS_CHECK, dtype: str = opt.DTYPE,
     workers: int = typer.Option(0, help="Parallel fits on this machine (0: all cores); with --ray local, "
                                         "the CPUs of that Ray instance."),
     ray: str = typer.Option(None, "--ray", help="Run on the Ray cluster at this address (auto, HOST:6379, "
@@ -43,7 +43,7 @@ def fit_many_command(
 
     options = opt.fit_options(preset=preset, up=up, viewpoint=viewpoint, line_of_sight=line_of_sight,
                               free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, device=device,
-                              units_check=units_check)
+                              units_check=units_check, dtype=dtype)
     check_threads(workers, "--workers")
     if retries < 0:
         raise JsrteError(f"--retries must be 0 or more, got {retries}")

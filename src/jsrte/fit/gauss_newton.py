@@ -59,7 +59,7 @@ from jsrte.fit.optimize import (
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
 from jsrte.fit.polish import adam_stage, adam_stage_due, contenders, polish
 from jsrte.geometry.sim3 import rotation_from_paper
-from jsrte.model.decoder import Decoder, decoder_device
+from jsrte.model.decoder import Decoder, decoder_device, uses_bfloat16
 from jsrte.presets import FitSettings
 
 POSE_COLUMNS = {"scale": [0], "psi": [1], "rho": [2], "theta": [3], "translation": [4, 5, 6]}
@@ -90,6 +90,8 @@ class Problem:
     huber: float
     penalty: float
     scale_prior: tuple[float, float]
+    bfloat16: bool = False
+    """The decoder's matrix products in bfloat16 (``FitSettings.decoder_dtype``)."""
 
 
 @dataclass
@@ -170,7 +172,8 @@ def linearize(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, problem: Pr
     x_in = canonical.reshape(h * k, 3).requires_grad_(need)
     z_in = z[:, None, :].expand(h, k, -1).reshape(h * k, -1)
     z_in = z_in.contiguous().requires_grad_(need) if need else z_in
-    with torch.set_grad_enabled(need):
+    with torch.set_grad_enabled(need), torch.autocast(x_in.device.type, dtype=torch.bfloat16,
+                                                      enabled=problem.bfloat16):
         f = decoder(x_in, z_in)
         if need:
             gx, gz = torch.autograd.grad(f.sum(), [x_in, z_in], allow_unused=True)
@@ -255,7 +258,7 @@ class ProblemDrawer:
         idx = self.sampler.draw(len(self.sdf), n).to(self.device)
         return Problem(self.points[idx], self.sdf[idx], None if self.lower is None else self.lower[idx],
                        self.clamp, self.settings.huber_canonical * self.s0, self.penalty,
-                       (self.settings.scale_prior, self.s0))
+                       (self.settings.scale_prior, self.s0), uses_bfloat16(self.settings.decoder_dtype, self.device))
 
 
 def screen_yaws(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, problem: Problem,

@@ -14,7 +14,7 @@ from tqdm import tqdm
 from jsrte.fit.adam import Adam
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
 from jsrte.fit.query import SdfQuery
-from jsrte.model.decoder import Decoder, decoder_device
+from jsrte.model.decoder import Decoder, decoder_device, uses_bfloat16
 from jsrte.presets import FitSettings
 
 
@@ -79,7 +79,7 @@ def latent_penalty(settings: FitSettings, *, n_surface: int) -> float:
 def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
                       *, clamp: float | None, latent_penalty: float,
                       lower_bound: torch.Tensor | None = None,
-                      scale_prior: tuple[float, float | None] = (0.0, 1.0)) -> torch.Tensor:
+                      scale_prior: tuple[float, float | None] = (0.0, 1.0), bfloat16: bool = False) -> torch.Tensor:
     """Per-hypothesis objective (H,): mean |clamp(s f(x_c, z)) − clamp(φ)| + λ‖code‖²
     [+ w s0 ln(s/s0)² with ``scale_prior`` = (w, s0); s0 None: each hypothesis's own initial
     scale, ``batch.start_scale``].
@@ -87,11 +87,14 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
     ``points`` (K, 3) and ``sdf`` (K,) in scan units, shared by all hypotheses; the code is z
     (the paper) or the whitened w of a :class:`LatentPrior`. Where ``lower_bound`` (K,) bool is
     set, φ only bounds the true SDF from below: the term is max(0, clamp(φ) − clamp(s f)).
+    ``bfloat16``: the decoder's matrix products in bfloat16 (``FitSettings.decoder_dtype``).
     """
     h, k = len(batch), points.shape[0]
     canonical = batch.to_canonical(points).to(torch.float32)  # (H, K, 3)
     codes = batch.latent.to(torch.float32)[:, None, :].expand(h, k, -1)
-    pred = decoder(canonical.reshape(-1, 3), codes.reshape(h * k, -1)).reshape(h, k)
+    with torch.autocast(canonical.device.type, dtype=torch.bfloat16, enabled=bfloat16):
+        pred = decoder(canonical.reshape(-1, 3), codes.reshape(h * k, -1))
+    pred = pred.to(torch.float32).reshape(h, k)
     pred = batch.scale.to(torch.float32)[:, None] * pred
     target = sdf.to(torch.float32)[None, :]
     if clamp is not None:
@@ -136,6 +139,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     lower = None if query.lower_bound is None else torch.as_tensor(query.lower_bound, device=device)
     survivors = np.arange(len(inits))
     pruned: dict[int, float] = {}
+    bfloat16 = uses_bfloat16(settings.decoder_dtype, device)
     optimizer = _adam(batch, settings.lr)
     sampler = SampleDrawer(query.sdf, near_share=settings.near_sample_share, clamp=clamp, generator=generator)
     recent = torch.zeros(len(inits), dtype=torch.float64, device=device)  # running loss, kept on the device
@@ -154,7 +158,8 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         idx = sampler.draw(_sample_pool(query, settings, it), settings.samples_per_iteration,
                            enriched=it >= settings.near_sample_from).to(device)
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
-                                   lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior)
+                                   lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior,
+                                   bfloat16=bfloat16)
         optimizer.zero_grad()
         losses.sum().backward()
         optimizer.step()

@@ -37,7 +37,7 @@ def adam_steps(decoder: Decoder, batch: HypothesisBatch, draw: Callable[[int], o
         problem = draw(samples)
         losses = hypothesis_losses(decoder, batch, problem.points, problem.sdf, clamp=problem.clamp,
                                    latent_penalty=problem.penalty, lower_bound=problem.lower,
-                                   scale_prior=problem.scale_prior)
+                                   scale_prior=problem.scale_prior, bfloat16=problem.bfloat16)
         optimizer.zero_grad()
         losses.sum().backward()
         optimizer.lr = lr(i)

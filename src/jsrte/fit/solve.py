@@ -16,7 +16,7 @@ from jsrte.fit.params import Init, LatentPrior
 from jsrte.fit.query import SdfQuery
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decoder import Decoder
+from jsrte.model.decoder import Decoder, decoder_device, uses_bfloat16
 from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FitSettings
 from jsrte.result import FitResult, HypothesisReport
@@ -123,6 +123,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         info={"decoder_evaluations": result.evaluations, "iterations": result.iterations,
               "fixed_parameters": sorted(fixed), "below_floor_samples": len(query.sdf) - n_query,
               "latent_space": settings.latent_space, "solver": settings.solver,
+              "decoder_dtype": _dtype_used(settings, decoder),
               "failed_hypotheses": {str(i): why for i, why in sorted(result.failed.items())},
               "winner_hypothesis": int(result.survivors[winner])},
     )
@@ -130,6 +131,11 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         fitted.info["decoder_evaluations_by_part"] = dict(result.evaluation_parts)
     _assess(model, observed, fitted, seed)
     return fitted
+
+
+def _dtype_used(settings: FitSettings, decoder: Decoder) -> str:
+    """The decoder arithmetic the fit moved its hypotheses with: "bfloat16" or "float32"."""
+    return "bfloat16" if uses_bfloat16(settings.decoder_dtype, decoder_device(decoder)) else "float32"
 
 
 def _assess(model: DeepSdfModel, query: SdfQuery, result: FitResult, seed: int) -> None:

@@ -8,6 +8,7 @@ Optional Fourier features of x (``pe_frequencies``) help thin parts at a small c
 from __future__ import annotations
 
 import math
+from functools import cache
 
 import torch
 from torch import nn
@@ -16,7 +17,8 @@ from torch.nn.utils.parametrizations import weight_norm
 from jsrte.model.config import ARCHITECTURES, DecoderConfig
 from jsrte.timing import count_evaluations
 
-__all__ = ["ARCHITECTURES", "Decoder", "DecoderConfig", "count_parameters", "decoder_device"]
+__all__ = ["ARCHITECTURES", "Decoder", "DecoderConfig", "count_parameters", "decoder_device", "native_bfloat16",
+           "uses_bfloat16"]
 
 
 class Decoder(nn.Module):
@@ -87,3 +89,22 @@ def decoder_device(module: nn.Module) -> torch.device:
 def count_parameters(module: nn.Module) -> int:
     """The number of scalar parameters of ``module``."""
     return sum(p.numel() for p in module.parameters())
+
+
+@cache
+def native_bfloat16(device_type: str) -> bool:
+    """Whether a device of this type ("cpu", "cuda") multiplies bfloat16 matrices natively: a
+    CUDA GPU that supports them, a CPU with AVX-512 BF16 or AMX. Elsewhere bfloat16 is emulated
+    and slower than float32."""
+    if device_type == "cuda":
+        return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
+    if device_type != "cpu":
+        return False
+    checks = [getattr(torch.cpu, name, None) for name in ("_is_avx512_bf16_supported", "_is_amx_tile_supported")]
+    return any(check() for check in checks if check is not None)
+
+
+def uses_bfloat16(decoder_dtype: str, device: torch.device) -> bool:
+    """Whether the fit setting ``decoder_dtype`` ("float32", "bfloat16" or "auto": bfloat16 where
+    :func:`native_bfloat16`) means bfloat16 matrix products on ``device``."""
+    return decoder_dtype == "bfloat16" or (decoder_dtype == "auto" and native_bfloat16(device.type))

@@ -252,13 +252,14 @@ class ProblemDrawer:
                                     generator=generator)
         self.settings = settings
         self.device = device
+        self.bfloat16 = uses_bfloat16(settings.decoder_dtype, device)
 
     def __call__(self, n: int) -> Problem:
         """``n`` samples drawn from all of the query's (with the near share, if any)."""
         idx = self.sampler.draw(len(self.sdf), n).to(self.device)
         return Problem(self.points[idx], self.sdf[idx], None if self.lower is None else self.lower[idx],
                        self.clamp, self.settings.huber_canonical * self.s0, self.penalty,
-                       (self.settings.scale_prior, self.s0), uses_bfloat16(self.settings.decoder_dtype, self.device))
+                       (self.settings.scale_prior, self.s0), self.bfloat16)
 
 
 def screen_yaws(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, problem: Problem,

@@ -17,6 +17,7 @@ from safetensors.torch import load_file
 from jsrte.errors import JsrteError
 from jsrte.metrics.surface import fscore
 from jsrte.model.checkpoint import DeepSdfModel, load_model, read_metadata, save_model
+from jsrte.model.config import PREVIOUS_STATE_NAME
 from jsrte.model.decoder import ARCHITECTURES, Decoder, DecoderConfig
 from jsrte.model.meshing import decode_mesh
 from jsrte.model.train import STATE_NAME, Trainer, TrainingData, TrainSettings, batch_indices
@@ -101,15 +102,25 @@ def test_batches_depend_only_on_seed_and_step():
     assert sorted(epoch.tolist()) == list(range(6))  # each shape once per epoch
 
 
+def test_a_model_file_that_vanishes_while_opened_is_reported_missing(tmp_path, monkeypatch):
+    # a training run moves its state aside before writing the next one: a reader can see the
+    # file in one instant and not in the next
+    path = tmp_path / "train_state.safetensors"
+    answers = iter([True])  # there at the check, gone at the open and after
+    monkeypatch.setattr(Path, "is_file", lambda self: next(answers, False))
+    with pytest.raises(JsrteError, match="no such model file"):
+        read_metadata(path)
+
+
 def _train_cmd(out: Path, steps: int) -> list[str]:
     return JSRTE + ["train", "--category", "chair", "--shapes", "3", "--samples", "4000", "--steps", str(steps),
                     "--batch-shapes", "2", "--points", "256", "--checkpoint-every", "10", "--threads", "1",
                     "--out", str(out), "--no-progress"]
 
 
-def _state_step(out: Path) -> int:
+def _state_step(out: Path, name: str = STATE_NAME) -> int:
     try:
-        return int(read_metadata(out / STATE_NAME)["step"])
+        return int(read_metadata(out / name)["step"])
     except (JsrteError, KeyError, ValueError):
         return -1
 
@@ -127,7 +138,8 @@ def test_resume_after_kill_matches_uninterrupted_run(tmp_path):
         time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
-    at_kill = _state_step(killed)
+    # killed between moving the last state aside and writing the next: resume takes the previous
+    at_kill = max(_state_step(killed), _state_step(killed, PREVIOUS_STATE_NAME))
     assert 0 < at_kill < steps, "the run must be killed mid-way"
     subprocess.run(_train_cmd(killed, steps) + ["--resume"], check=True, env=env, capture_output=True)
     a, b = load_file(str(reference / "model.safetensors")), load_file(str(killed / "model.safetensors"))

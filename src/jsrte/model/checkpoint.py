@@ -147,7 +147,10 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     try:
         with safe_open(str(path), framework="pt") as f:
             raw = (f.metadata() or {}).get("jsrte")
-    except (SafetensorError, OSError, ValueError) as exc:
+    except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
+        # safetensors reports a file that vanished after the check above as a RuntimeError
+        if not path.is_file():
+            raise JsrteError("no such model file", path) from exc
         raise JsrteError(f"corrupt or not a safetensors model file ({exc})", path) from exc
     if raw is None:
         raise JsrteError("is a safetensors file but not a jsrte model (no 'jsrte' metadata)", path)

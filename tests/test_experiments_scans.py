@@ -47,3 +47,22 @@ def test_worker_processes_give_the_rows_of_one_process(tmp_path, tiny_model, cas
 def test_experiment_cli_refuses_zero_jobs(tmp_path, run_cli):
     code, _, stderr = run_cli(["experiment", "scans", "--out", str(tmp_path / "o"), "--jobs", "0"])
     assert code != 0 and "--jobs" in stderr
+
+
+def test_own_sizes_stand_each_shape_at_its_own_size_in_the_same_pose(tmp_path):
+    from jsrte.geometry.mesh import unit_sphere_normalization
+    from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
+
+    drawn = virtual_cases("bed", 1, tmp_path / "drawn", seed=2)[0].truth
+    own = virtual_cases("bed", 1, tmp_path / "own", seed=2, sizes="own")[0].truth
+    bed = generate_shape("bed", shape_seed(EVAL_SET_SEED, 0)).mesh
+    radius = unit_sphere_normalization(bed).scale  # metres
+    assert own.scan_from_canonical.s == pytest.approx(radius, rel=1e-9)  # scale 1: the bed's own metres
+    assert abs(drawn.scan_from_canonical.s / radius - 1.0) > 0.02  # drawn 0.6-1.2 m tall instead
+    assert own.scan_from_canonical.R == pytest.approx(drawn.scan_from_canonical.R)  # the same pose
+
+
+def test_experiment_cli_refuses_own_sizes_in_rooms(tmp_path, run_cli):
+    code, _, stderr = run_cli(["experiment", "scans", "--out", str(tmp_path / "o"), "--clutter",
+                               "--sizes", "own"])
+    assert code == 2 and "--sizes" in stderr and stderr.count("\n") == 1 and not (tmp_path / "o").exists()

@@ -33,17 +33,24 @@ def scans_command(
     clutter: bool = typer.Option(False, "--clutter", help="Scan each shape in a room: walls, a table and boxes "
                                                           "beside it, one touching it (docs/clutter.md)."),
     first: int = typer.Option(0, help="First evaluation-set index of the virtual scans (0: Table 2's)."),
+    sizes: str = typer.Option("drawn", help="drawn: each shape scaled to a height drawn from 0.6-1.2 m, whatever "
+                                            "its class (Table 2's protocol); own: each at its own size in metres "
+                                            "(clean scans only)."),
 ) -> None:
     """Every method on every scan; F@5% against the true shape and the scan, times, figures."""
     from jsrte.atomic import output_dir
     from jsrte.baselines import BASELINE_NAMES
-    from jsrte.experiments.scans import SCALES, folder_cases, run_scan_experiment, virtual_cases
+    from jsrte.experiments.scans import SCALES, SIZES, folder_cases, run_scan_experiment, virtual_cases
     from jsrte.fit import model_names
     from jsrte.model.registry import resolve_model
 
     chosen = split_names(methods, ("jsrte",) + BASELINE_NAMES, "method")
     if scale not in SCALES:
         raise JsrteError(f"unknown scale {scale!r} (known: {', '.join(SCALES)})")
+    if sizes not in SIZES:
+        raise JsrteError(f"unknown --sizes {sizes!r} (known: {', '.join(SIZES)})")
+    if clutter and sizes != "drawn":
+        raise JsrteError("--sizes own is for clean scans: in a room (--clutter) the shape stands at a drawn height")
     if jobs < 1:
         raise JsrteError(f"--jobs must be positive, got {jobs}")
     check_threads(threads)
@@ -56,7 +63,7 @@ def scans_command(
     with output_dir(out, overwrite=overwrite, marker="table.md") as folder_out:
         cases = (folder_cases(folder) if folder is not None
                  else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed,
-                                    first=first, clutter=clutter))
+                                    first=first, clutter=clutter, sizes=sizes))
         run_scan_experiment(cases, list(chosen), folder_out, model=loaded, preset=preset, seed=seed,
                             jobs=jobs, threads=threads or None, report=html_report, category=category)
     typer.echo((out / "table.md").read_text())

@@ -42,25 +42,37 @@ CLUTTER_KINDS = ("table", "box")
 a room; never a second object of the class (which one would be "the" object?)."""
 
 
+SIZES = ("drawn", "own")
+"""How big a clean scan's shape stands: ``drawn``, scaled to a height drawn from the scanner's
+0.6-1.2 m whatever its class (Table 2's protocol, as for meshes in arbitrary units); ``own``, at
+its own size in metres (the procedural shapes are metric: a bed is a bed's size)."""
+
+
 def virtual_cases(category: str, n: int, folder: Path, *, seed: int = 0, first: int = 0,
-                  clutter: bool = False) -> list[ScanCase]:
+                  clutter: bool = False, sizes: str = "drawn") -> list[ScanCase]:
     """Scan ``n`` held-out shapes of ``category`` (evaluation set indices ``first``...) into
-    ``folder`` (category_000.ply + .json). With ``clutter``, each shape is scanned in a room
+    ``folder`` (category_000.ply + .json), each at the size ``sizes`` says (:data:`SIZES`;
+    the pose and the views are drawn alike either way). With ``clutter``, each shape is scanned in a room
     instead (:func:`jsrte.scans.scene.scan_room`: walls, a table and boxes beside it, one of
     them touching it) into ``folder/category_000/`` (scan.ply, scan.json, scene.json,
     labels.npy, meshes/); the room is drawn from the same seed, so the same index always
     gives the same room."""
     from jsrte.experiments.truth import truth_of
     from jsrte.geometry.mesh import save_mesh
-    from jsrte.scans.scanner import scan_mesh, write_scan
+    from jsrte.scans.scanner import ScannerSettings, at_own_size, scan_mesh, write_scan
     from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 
+    if sizes not in SIZES:
+        raise JsrteError(f"unknown sizes {sizes!r} (known: {', '.join(SIZES)})")
+    if clutter and sizes != "drawn":
+        raise JsrteError("--sizes own is for clean scans; a room's shape stands at a drawn height")
     if clutter:
         return _cluttered_cases(category, n, folder, seed=seed, first=first)
     cases = []
     for i in range(first, first + n):
         shape = generate_shape(category, shape_seed(EVAL_SET_SEED, i))
-        scan = scan_mesh(shape.mesh, rng=np.random.default_rng(seed * 100_003 + i))
+        settings = at_own_size(shape.mesh, ScannerSettings()) if sizes == "own" else ScannerSettings()
+        scan = scan_mesh(shape.mesh, rng=np.random.default_rng(seed * 100_003 + i), settings=settings)
         mesh_path = folder / f"{category}_{i:03d}_true_mesh_frame.ply"
         save_mesh(shape.mesh, mesh_path)
         path = write_scan(scan, folder / f"{category}_{i:03d}.ply", seed=seed, mesh=mesh_path)

@@ -219,6 +219,15 @@ def write_scan(
     return ply_path
 
 
+def at_own_size(mesh: trimesh.Trimesh, settings: ScannerSettings) -> ScannerSettings:
+    """``settings`` that stand ``mesh`` (metres) at its own size (scale 1) instead of a drawn
+    height: for metric meshes such as the procedural furniture, whose sizes tell classes apart."""
+    from dataclasses import replace
+
+    height = float(np.ptp(mesh.vertices[:, 1]))
+    return replace(settings, target_height_m=(height, height), max_extent_m=None)
+
+
 # --- scene -----------------------------------------------------------------------------------
 
 

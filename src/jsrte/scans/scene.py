@@ -41,6 +41,7 @@ from jsrte.scans.scanner import (
     _place_object,
     _world_frame,
     _yaw,
+    at_own_size,
     render_view,
 )
 
@@ -167,7 +168,7 @@ def scan_room(
     s = settings
     _check_settings(s.scanner)
     validate_mesh(target)
-    level_from_mesh, _ = _place_object(target, rng, _own_size(target, s.scanner) if s.frame_all else s.scanner)
+    level_from_mesh, _ = _place_object(target, rng, at_own_size(target, s.scanner) if s.frame_all else s.scanner)
     target_level = level_from_mesh.apply(target.vertices)
     centre, sphere_radius = _bounding_sphere(target_level)
     facing = float(rng.uniform(0.0, 2.0 * math.pi))  # azimuth of the cameras, seen from the target
@@ -231,12 +232,6 @@ def _sweep(placed: list[tuple[np.ndarray, np.ndarray]], facing: float, rng: np.r
     cameras = np.concatenate(cameras)
     cameras[:, 1] = cameras[:, 1].mean() + rng.normal(scale=s.camera_height_jitter_m, size=len(cameras))
     return cameras, np.concatenate(looks)
-
-
-def _own_size(mesh: trimesh.Trimesh, s: ScannerSettings) -> ScannerSettings:
-    """Scanner settings that stand ``mesh`` (metres) at its own size (scale 1)."""
-    height = float(np.ptp(mesh.vertices[:, 1]))
-    return replace(s, target_height_m=(height, height), max_extent_m=None)
 
 
 def _bounding_sphere(vertices: np.ndarray) -> tuple[np.ndarray, float]:

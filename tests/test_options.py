@@ -82,3 +82,12 @@ def test_a_mode_typo_in_fit_settings_is_refused():
     with pytest.raises(ValueError, match="FitSettings.selection must be one of fscore, loss, got 'los'"):
         FitSettings(selection="los")
     assert FitSettings(solver="gauss-newton", latent_space="whitened", init_scale="height").solver == "gauss-newton"
+
+
+def test_the_default_preset_follows_what_the_fit_must_find():
+    from jsrte.presets import default_preset, names_several_models
+
+    assert [names_several_models(m) for m in ("auto", "chair,table", "chair", None, ["a", "b"], ["a"])] == \
+        [True, True, False, False, True, False]
+    assert default_preset() == "fast" and default_preset(class_unknown=True) == "sized"
+    assert default_preset(scene=True, class_unknown=True) == "fast-scales"

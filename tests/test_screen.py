@@ -497,3 +497,27 @@ def test_a_piece_of_an_object_grows_over_the_points_its_fit_passes_through(monke
     assert chosen.candidate == (3 if grown_score <= 0.01 + ScreenSettings().grow_margin else 1)
     whole = Screened("ball", 0, None, result, 0.01, {"residual": 0.01, "rank": 0.0, "radius": 1.0})
     assert grow(whole, cands, model, ScreenSettings(), 0) is whole and len(asked) == 1  # nothing to grow over
+
+
+@pytest.mark.slow
+def test_an_unknown_class_holds_every_fit_to_its_class_sizes_unless_a_preset_is_named(tmp_path, monkeypatch):
+    """One object, class unknown: the default preset is ``sized``, and its screen's quick fits are
+    held to each class's sizes as its full fits are; a named preset holds nothing."""
+    fitting, solve = importlib.import_module("jsrte.fit"), importlib.import_module("jsrte.fit.solve")
+    margins = []
+    original = solve.fit_query
+
+    def short_fit(model, query, settings, **kw):
+        margins.append(settings.size_margin)
+        return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
+
+    monkeypatch.setattr(solve, "fit_query", short_fit)
+    monkeypatch.setattr(fitting, "fit_query", short_fit)
+    scan = scan_mesh(held_out("table", 101), rng=np.random.default_rng(4))
+    ply = write_scan(scan, tmp_path / "table.ply")
+    held = fitting.fit(ply, model="chair,table", hypotheses=2)
+    assert held.info["preset"] == "sized" and len(margins) >= 3 and set(margins) == {1.2}
+    margins.clear()
+    free = fitting.fit(ply, model="chair,table", preset="fast", hypotheses=2)
+    assert free.info["preset"] == "fast" and len(margins) >= 3 and set(margins) == {None}
+    assert fitting.fit(ply, model="table", hypotheses=2).info["preset"] == "fast"

@@ -349,6 +349,24 @@ SCENE_PRESET = "fast-scales"
 """The default of a whole scene (``jsrte fit --scene``, ``fit_scene``, ``jsrte experiment scenes``):
 a room's beds, sofas and tables vary in proportions, and each full fit also starts at its
 points' scale (docs/clutter.md, "Whole scenes")."""
+CLASS_PRESET = "sized"
+"""The default for one object of unknown class (``--model auto`` or several models): each
+class's quick and full fits held to that class's sizes, which tell a bed from a sofa or a table
+of a bed's size (docs/presets.md, "`sized`")."""
+
+
+def default_preset(*, scene: bool = False, class_unknown: bool = False) -> str:
+    """The preset a fit takes unless told: :data:`SCENE_PRESET` for a whole scene,
+    :data:`CLASS_PRESET` for one object of unknown class, else :data:`DEFAULT_PRESET`."""
+    return SCENE_PRESET if scene else CLASS_PRESET if class_unknown else DEFAULT_PRESET
+
+
+def names_several_models(model: object) -> bool:
+    """Whether ``model`` (a ``--model`` value, or a list) lets the fit choose the class: "auto",
+    names separated by commas, or a list of more than one."""
+    if isinstance(model, list | tuple):
+        return len(model) > 1
+    return isinstance(model, str) and (model == "auto" or "," in model)
 
 def get_preset(name: str) -> Preset:
     """Return the preset called ``name``; raises KeyError listing the known names."""

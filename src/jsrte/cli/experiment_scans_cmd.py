@@ -23,7 +23,8 @@ def scans_command(
     folder: Path = typer.Option(None, help="Use the real scans in this folder instead (no truth)."),
     methods: str = typer.Option("jsrte,harris3d-shot,ourcvfh-icp,pointnet-icp,fpfh-ransac-icp",
                                 help="Methods, comma-separated."),
-    preset: str = typer.Option("fast", help="Fit preset for jsrte."),
+    preset: str = typer.Option(None, help="Fit preset for jsrte (default: fast; sized with --model auto or a "
+                                          "list)."),
     seed: int = typer.Option(0, help="Random seed (scan poses)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
@@ -43,6 +44,7 @@ def scans_command(
     from jsrte.experiments.scans import SCALES, SIZES, folder_cases, run_scan_experiment, virtual_cases
     from jsrte.fit import model_names
     from jsrte.model.registry import resolve_model
+    from jsrte.presets import default_preset, names_several_models
 
     chosen = split_names(methods, ("jsrte",) + BASELINE_NAMES, "method")
     if scale not in SCALES:
@@ -55,10 +57,11 @@ def scans_command(
         raise JsrteError(f"--jobs must be positive, got {jobs}")
     check_threads(threads)
     check_out_folder(out, marker="table.md", overwrite=overwrite)
-    several = model is not None and (model == "auto" or "," in model)
+    several = names_several_models(model)
     if several and any(m != "jsrte" for m in chosen):
         raise JsrteError(f"--model {model}: only jsrte chooses the class; pass --methods jsrte")
     loaded = model_names(model) if several else resolve_model(model or category)
+    preset = preset or default_preset(class_unknown=several)
     set_threads(threads)
     with output_dir(out, overwrite=overwrite, marker="table.md") as folder_out:
         cases = (folder_cases(folder) if folder is not None

@@ -35,9 +35,9 @@ def fit_command(
     from jsrte.atomic import output_dir
     from jsrte.fit import fit
     from jsrte.fit.outputs import RESULT_NAME, write_fit_outputs
-    from jsrte.presets import DEFAULT_PRESET, SCENE_PRESET
+    from jsrte.presets import default_preset, names_several_models
 
-    preset = preset or (SCENE_PRESET if scene else DEFAULT_PRESET)
+    preset = preset or default_preset(scene=scene, class_unknown=names_several_models(model))
     options = opt.fit_options(preset=preset, up=up, viewpoint=viewpoint, line_of_sight=line_of_sight,
                               free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, device=device,
                               units_check=units_check, dtype=dtype)
@@ -61,7 +61,7 @@ def fit_command(
 def prepare_command(
     scan: Path = typer.Argument(..., help="Scan (PLY/PCD/XYZ, metres) or complete mesh (OBJ/OFF/STL/GLB)."),
     out: Path = typer.Option(..., "--out", help="Query file to write (.npz), for `jsrte fit QUERY.npz`."),
-    preset: str = opt.PRESET, up: str = opt.UP, viewpoint: list[str] = opt.VIEWPOINT,
+    preset: str = opt.QUERY_PRESET, up: str = opt.UP, viewpoint: list[str] = opt.VIEWPOINT,
     line_of_sight: bool = opt.LINE_OF_SIGHT, at: str = opt.AT, seed: int = opt.SEED,
     units_check: bool = opt.UNITS_CHECK,
     overwrite: bool = typer.Option(False, help="Replace an existing query file."),

@@ -10,7 +10,7 @@ import typer
 
 from jsrte.errors import JsrteError
 from jsrte.options import FitOptions
-from jsrte.presets import DECODER_DTYPES, DEFAULT_PRESET, PRESETS, SCENE_PRESET
+from jsrte.presets import CLASS_PRESET, DECODER_DTYPES, DEFAULT_PRESET, PRESETS, SCENE_PRESET
 
 if TYPE_CHECKING:  # numpy is imported by the functions that run, never for --help
     import numpy as np
@@ -18,9 +18,12 @@ if TYPE_CHECKING:  # numpy is imported by the functions that run, never for --he
 MODEL = typer.Option("chair", help="Shipped model name or model file; several separated by commas (chair,table), "
                                    "or auto (every shipped model): the class whose quick fit explains the object "
                                    "best is fitted.")
-PRESET = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)} (docs/presets.md).")
+QUERY_PRESET = typer.Option(DEFAULT_PRESET, help=f"Fit settings: {', '.join(PRESETS)} (docs/presets.md).")
+PRESET = typer.Option(None, help=f"Fit settings: {', '.join(PRESETS)} (docs/presets.md). "
+                                 f"Default: {DEFAULT_PRESET}; {CLASS_PRESET} where the class is unknown.")
 SCENE_OR_FIT_PRESET = typer.Option(None, help=f"Fit settings: {', '.join(PRESETS)} (docs/presets.md). "
-                                              f"Default: {DEFAULT_PRESET}; {SCENE_PRESET} with --scene.")
+                                              f"Default: {DEFAULT_PRESET}; {CLASS_PRESET} where the class is "
+                                              f"unknown (--model auto or a list); {SCENE_PRESET} with --scene.")
 UP = typer.Option(None, help="Known up axis X,Y,Z (default: the floor normal; +y for meshes).")
 VIEWPOINT = typer.Option(
     None, help="Sensor position X,Y,Z in the scan's frame (metres), repeatable; 0,0,0 for a depth frame in "

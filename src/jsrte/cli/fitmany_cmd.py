@@ -40,7 +40,9 @@ def fit_many_command(
     Exit status 0 when every scan is done, 1 when some failed (see summary.csv), 2 on bad input.
     """
     from jsrte.batch import fit_many
+    from jsrte.presets import default_preset, names_several_models
 
+    preset = preset or default_preset(class_unknown=names_several_models(model))
     options = opt.fit_options(preset=preset, up=up, viewpoint=viewpoint, line_of_sight=line_of_sight,
                               free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, device=device,
                               units_check=units_check, dtype=dtype)

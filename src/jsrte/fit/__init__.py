@@ -29,18 +29,21 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
         ``class`` records every class's score)
     options : how to fit (:class:`jsrte.options.FitOptions`: preset, up, viewpoints,
         line_of_sight, free_axis, at, hypotheses, seed, device, units_check); default: the
-        defaults of ``jsrte fit``. In a scan of several objects the object is the one nearest
-        ``at``, else, of the candidates whose proportions match the class best, the one a quick
-        fit explains best (fit.json's ``query.segmentation`` records the choice and the others)
+        defaults of ``jsrte fit`` (preset ``fast``; ``sized`` where ``model`` names several).
+        In a scan of several objects the object is the one nearest ``at``, else, of the
+        candidates whose proportions match the class best, the one a quick fit explains best
+        (fit.json's ``query.segmentation`` records the choice and the others)
     progress : show a progress bar
     changes : options by name, applied over ``options`` (``fit(scan, up=(0, 0, 1), seed=3)``);
         ``device`` moves a loaded ``model`` there (None: a loaded model stays where it is, a
         named one runs on the CPU)
     """
     from jsrte.formats import input_kind
+    from jsrte.presets import default_preset, names_several_models
     from jsrte.timing import stage
 
-    options = (options or FitOptions()).changed(**changes)
+    options = (options or FitOptions(preset=default_preset(class_unknown=names_several_models(model)))
+               ).changed(**changes)
     class_choice = None
     with stage("load"):
         models = load_models(model, options.device)
@@ -141,7 +144,7 @@ def _choose_in_scan(query: str | Path, models: dict, options: FitOptions) -> obj
     ``jsrte.fit.screen.Choice`` (its ``objects``: the contending classes' objects, more than one
     where the classes' final fits decide)."""
     from jsrte.fit.query import class_shape, scan_candidates
-    from jsrte.fit.screen import choose_in_scan
+    from jsrte.fit.screen import ScreenSettings, choose_in_scan
     from jsrte.timing import stage
 
     single = len(models) == 1
@@ -155,7 +158,8 @@ def _choose_in_scan(query: str | Path, models: dict, options: FitOptions) -> obj
                                    settings=settings.scan_sdf, units_check=options.units_check,
                                    shape=class_shape(model))
 
-    return choose_in_scan(query, models, segment=segment, seed=options.seed, final_rng=rng)
+    screen = ScreenSettings().held_to_sizes(settings.fit.size_margin)
+    return choose_in_scan(query, models, segment=segment, settings=screen, seed=options.seed, final_rng=rng)
 
 
 def _array(value: tuple | None) -> np.ndarray | None:

@@ -225,7 +225,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
                                 viewpoints=_array(options.viewpoints), settings=settings.scan_sdf,
                                 units_check=options.units_check, shape=shape,
                                 segment=SegmentSettings() if shape is not None else SCENE_SEGMENT)
-    screen = _held_to_sizes(screen, settings.fit.size_margin)
+    screen = screen.held_to_sizes(settings.fit.size_margin)
     segmented = cands.segmented
     seg = cands.segmentation
     cloud_points = np.asarray(segmented.cloud.points, float)
@@ -247,15 +247,6 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
                        floor_offset=None if floor is None else float(floor.offset),
                        options=options.record(), models=list(models),
                        covered=_covered_json(seg.candidates, covered))
-
-
-def _held_to_sizes(screen: ScreenSettings, margin: float | None) -> ScreenSettings:
-    """``screen`` with its quick fits held to each class's sizes as the full fits are (a preset's
-    ``size_margin``, e.g. ``sized``); unchanged where the preset holds none."""
-    if margin is None:
-        return screen
-    return replace(screen, fit=replace(screen.fit, size_margin=margin),
-                   class_fit=replace(screen.class_fit, size_margin=margin))
 
 
 def _to_screen(cands: object, several: bool) -> list[int]:

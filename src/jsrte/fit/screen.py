@@ -132,6 +132,14 @@ class ScreenSettings:
     grow_min_share: float = 0.05
     """... and when growing adds at least this share of its points."""
 
+    def held_to_sizes(self, margin: float | None) -> ScreenSettings:
+        """These settings with the quick fits held to each class's sizes as the full fits are (a
+        preset's ``size_margin``, e.g. ``sized``); unchanged where the preset holds none."""
+        if margin is None:
+            return self
+        return replace(self, fit=replace(self.fit, size_margin=margin),
+                       class_fit=replace(self.class_fit, size_margin=margin))
+
 
 @dataclass
 class Screened:

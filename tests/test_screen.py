@@ -500,24 +500,23 @@ def test_a_piece_of_an_object_grows_over_the_points_its_fit_passes_through(monke
 
 
 @pytest.mark.slow
-def test_an_unknown_class_holds_every_fit_to_its_class_sizes_unless_a_preset_is_named(tmp_path, monkeypatch):
-    """One object, class unknown: the default preset is ``sized``, and its screen's quick fits are
-    held to each class's sizes as its full fits are; a named preset holds nothing."""
+def test_an_unknown_class_starts_every_full_fit_at_both_scales_unless_a_preset_is_named(tmp_path, monkeypatch):
+    """One object, class unknown: the default preset is ``fast-scales`` (each full fit started at
+    the height's and the bounding sphere's scale); a named preset, or a known class, keeps its own."""
     fitting, solve = importlib.import_module("jsrte.fit"), importlib.import_module("jsrte.fit.solve")
-    margins = []
+    starts = []
     original = solve.fit_query
 
     def short_fit(model, query, settings, **kw):
-        margins.append(settings.size_margin)
+        starts.append(settings.init_scale)
         return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
 
-    monkeypatch.setattr(solve, "fit_query", short_fit)
-    monkeypatch.setattr(fitting, "fit_query", short_fit)
+    monkeypatch.setattr(fitting, "fit_query", short_fit)  # the full fits, not the screen's quick ones
     scan = scan_mesh(held_out("table", 101), rng=np.random.default_rng(4))
     ply = write_scan(scan, tmp_path / "table.ply")
-    held = fitting.fit(ply, model="chair,table", hypotheses=2)
-    assert held.info["preset"] == "sized" and len(margins) >= 3 and set(margins) == {1.2}
-    margins.clear()
-    free = fitting.fit(ply, model="chair,table", preset="fast", hypotheses=2)
-    assert free.info["preset"] == "fast" and len(margins) >= 3 and set(margins) == {None}
+    unknown = fitting.fit(ply, model="chair,table", hypotheses=2)
+    assert unknown.info["preset"] == "fast-scales" and starts and set(starts) == {"both"}
+    starts.clear()
+    named = fitting.fit(ply, model="chair,table", preset="fast", hypotheses=2)
+    assert named.info["preset"] == "fast" and starts and set(starts) == {"height"}
     assert fitting.fit(ply, model="table", hypotheses=2).info["preset"] == "fast"

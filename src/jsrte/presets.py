@@ -349,10 +349,10 @@ SCENE_PRESET = "fast-scales"
 """The default of a whole scene (``jsrte fit --scene``, ``fit_scene``, ``jsrte experiment scenes``):
 a room's beds, sofas and tables vary in proportions, and each full fit also starts at its
 points' scale (docs/clutter.md, "Whole scenes")."""
-CLASS_PRESET = "sized"
-"""The default for one object of unknown class (``--model auto`` or several models): each
-class's quick and full fits held to that class's sizes, which tell a bed from a sofa or a table
-of a bed's size (docs/presets.md, "`sized`")."""
+CLASS_PRESET = "fast-scales"
+"""The default for one object of unknown class (``--model auto`` or several models), as for a
+whole scene: the class's shape decides its proportions, so each full fit also starts at its
+points' scale (docs/presets.md, "Tables and sofas")."""
 
 
 def default_preset(*, scene: bool = False, class_unknown: bool = False) -> str:

@@ -23,8 +23,8 @@ def scans_command(
     folder: Path = typer.Option(None, help="Use the real scans in this folder instead (no truth)."),
     methods: str = typer.Option("jsrte,harris3d-shot,ourcvfh-icp,pointnet-icp,fpfh-ransac-icp",
                                 help="Methods, comma-separated."),
-    preset: str = typer.Option(None, help="Fit preset for jsrte (default: fast; sized with --model auto or a "
-                                          "list)."),
+    preset: str = typer.Option(None, help="Fit preset for jsrte (default: fast; fast-scales with --model auto "
+                                          "or a list)."),
     seed: int = typer.Option(0, help="Random seed (scan poses)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),

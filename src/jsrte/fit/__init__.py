@@ -29,7 +29,7 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
         ``class`` records every class's score)
     options : how to fit (:class:`jsrte.options.FitOptions`: preset, up, viewpoints,
         line_of_sight, free_axis, at, hypotheses, seed, device, units_check); default: the
-        defaults of ``jsrte fit`` (preset ``fast``; ``sized`` where ``model`` names several).
+        defaults of ``jsrte fit`` (preset ``fast``; ``fast-scales`` where ``model`` names several).
         In a scan of several objects the object is the one nearest ``at``, else, of the
         candidates whose proportions match the class best, the one a quick fit explains best
         (fit.json's ``query.segmentation`` records the choice and the others)
@@ -144,7 +144,7 @@ def _choose_in_scan(query: str | Path, models: dict, options: FitOptions) -> obj
     ``jsrte.fit.screen.Choice`` (its ``objects``: the contending classes' objects, more than one
     where the classes' final fits decide)."""
     from jsrte.fit.query import class_shape, scan_candidates
-    from jsrte.fit.screen import ScreenSettings, choose_in_scan
+    from jsrte.fit.screen import choose_in_scan
     from jsrte.timing import stage
 
     single = len(models) == 1
@@ -158,8 +158,7 @@ def _choose_in_scan(query: str | Path, models: dict, options: FitOptions) -> obj
                                    settings=settings.scan_sdf, units_check=options.units_check,
                                    shape=class_shape(model))
 
-    screen = ScreenSettings().held_to_sizes(settings.fit.size_margin)
-    return choose_in_scan(query, models, segment=segment, settings=screen, seed=options.seed, final_rng=rng)
+    return choose_in_scan(query, models, segment=segment, seed=options.seed, final_rng=rng)
 
 
 def _array(value: tuple | None) -> np.ndarray | None:

@@ -107,3 +107,38 @@ def test_the_runner_up_is_fitted_only_where_the_best_fit_needs_an_atypical_code(
     assert final["margin"] == pytest.approx(0.02 * 1.1 - 0.002, abs=1e-5)
     assert final["terms"]["ball"]["unexplained"] > 0.25 and final["terms"]["pair"]["residual"] < 1e-5
     assert final["decoder_evaluations"] == {"ball": 100, "pair": 100}
+
+
+@pytest.mark.parametrize("ball_scale", [1.0, 2.0])
+def test_a_fit_outside_its_class_sizes_calls_the_runner_up_and_loses_to_a_fit_within(monkeypatch, ball_scale):
+    """"ball" leads the screen and its full fit needs a typical code; where that fit's radius
+    lies outside the ball model's sizes (0.9-1.1 m, widened by 1.3: 0.69-1.43 m) "pair" is
+    fitted too and wins, though its final score is higher: a size none of its class's is no
+    evidence for the class."""
+    fit_module = importlib.import_module("jsrte.fit")
+    query, models = _ball_and_blob()
+    models["ball"].meta["sizes_m"] = {"smallest": 0.9, "median": 1.0, "largest": 1.1, "shapes": 10}
+    fits = {"ball": _fit(ball_scale, 0.6), "pair": _fit(1.0, 0.8)}
+    fitted = []
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False):
+        fitted.append(model.meta["name"])
+        return fits[model.meta["name"]]
+
+    monkeypatch.setattr(fit_module, "fit_recorded", fit_recorded)
+    screen_record = {"chosen": "ball", "chosen_by": "fit", "scores": {"ball": 0.030, "pair": 0.032},
+                     "margin": 0.002, "refitted": []}
+    settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02, final_size_margin=1.3)
+    options = type("Options", (), {"seed": 0})()
+    result = fit_contenders({"ball": query, "pair": query}, models, options, screen_record, settings=settings)
+    final = result.info["class"]["final"]
+    if ball_scale == 1.0:
+        assert fitted == ["ball"] and result is fits["ball"] and final["in_sizes"] == {"ball": True}
+        return
+    assert fitted == ["ball", "pair"] and result is fits["pair"] and result.info["class"]["chosen"] == "pair"
+    assert final["in_sizes"] == {"ball": False, "pair": None}  # the pair model records no sizes
+    assert final["scores"]["pair"] > final["scores"]["ball"]
+    off = ScreenSettings(final_code_max=0.9, final_code_weight=0.02, final_size_margin=None)
+    fitted.clear()
+    assert fit_contenders({"ball": query, "pair": query}, models, options, screen_record, settings=off) is fits["ball"]
+    assert fitted == ["ball"]

@@ -10,7 +10,9 @@ two are compared by their **final score**: the class score of the screen plus
 ``final_code_weight`` times the code's ratio. The class score says how well each model explains
 the whole cluster; the code's ratio says how typical a shape of its class the model had to
 become to do so (a sofa model stretched over a bed, or a bed model over a sofa, needs a code
-far out among its training codes).
+far out among its training codes). A fit whose size is none of its class's (a sofa fitted to a
+bed at 2 m, any training sofa being at most 1.46 m) also calls the runner-up's full fit, and a
+class whose fit lies within its sizes wins over one whose fit does not (``final_size_margin``).
 
 Each compared fit's data terms on the same points (:func:`final_terms`: the screen's robust
 residual, free-space share and unexplained share, averaged over the compared objects) are
@@ -55,11 +57,27 @@ def final_score(class_score: float, code: float | None, settings: ScreenSettings
 
 
 def decide(class_scores: dict[str, float], codes: dict[str, float | None],
-           settings: ScreenSettings = ScreenSettings()) -> tuple[str, dict[str, float]]:
+           settings: ScreenSettings = ScreenSettings(),
+           in_sizes: dict[str, bool | None] | None = None) -> tuple[str, dict[str, float]]:
     """The class of lowest :func:`final_score` among the fully fitted ``codes`` (class -> its
-    fit's code ratio; ``class_scores``: the screen's), and each one's final score."""
+    fit's code ratio; ``class_scores``: the screen's), and each one's final score. Where
+    ``in_sizes`` (class -> whether its fit lies within its class's sizes; None: unknown) says
+    some fits lie outside and others do not, only the others can win."""
     scores = {name: final_score(class_scores[name], code, settings) for name, code in codes.items()}
-    return min(scores, key=scores.__getitem__), scores
+    eligible = [name for name in scores if (in_sizes or {}).get(name) is not False] or list(scores)
+    return min(eligible, key=scores.__getitem__), scores
+
+
+def within_sizes(model: DeepSdfModel, result: FitResult, margin: float | None) -> bool | None:
+    """Whether ``result``'s radius (its scale s, metres) lies within ``model``'s class sizes
+    widened by ``margin`` each way; None where either is unknown."""
+    from jsrte.model.sizes import model_sizes
+
+    sizes = None if margin is None else model_sizes(model.meta)
+    if sizes is None:
+        return None
+    lo, hi = sizes.bounds(margin)
+    return bool(lo <= float(result.transform.s) <= hi)
 
 
 def fit_contenders(objects: dict[str, SdfQuery], models: dict[str, DeepSdfModel], options: object,
@@ -67,8 +85,9 @@ def fit_contenders(objects: dict[str, SdfQuery], models: dict[str, DeepSdfModel]
                    progress: bool = False) -> FitResult:
     """Fit the best contending class's object in full (``objects``: class -> its object, the
     screen's best first; ``options``: the fit's ``FitOptions``); where its code is atypical
-    (ratio above ``final_code_max``), fit the others too and keep the lowest final score
-    (:func:`decide`). The kept fit's fit.json ``class`` block is ``class_record`` (the
+    (ratio above ``final_code_max``) or its size none of its class's (:func:`within_sizes`,
+    ``final_size_margin``), fit the others too and keep the lowest final score among the fits
+    within their sizes (:func:`decide`). The kept fit's fit.json ``class`` block is ``class_record`` (the
     screen's: its ``scores`` are the class scores) with ``chosen``, ``chosen_by`` ("fit": the
     screen; "final fit": the final scores) and ``final``: the classes ``compared`` (fitted in
     full), each one's ``terms`` (:func:`final_terms`) and final ``scores``, the ``margin``
@@ -77,16 +96,19 @@ def fit_contenders(objects: dict[str, SdfQuery], models: dict[str, DeepSdfModel]
 
     results: dict[str, FitResult] = {}
     terms: dict[str, dict[str, float | None]] = {}
+    in_sizes: dict[str, bool | None] = {}
     for name, query in objects.items():
         results[name] = fit_recorded(models[name], query, options, progress=progress)
         terms[name] = final_terms(models[name], results[name], objects, settings, seed=options.seed)
+        in_sizes[name] = within_sizes(models[name], results[name], settings.final_size_margin)
         code = terms[name]["code"]
-        if len(results) == 1 and (code is None or code <= settings.final_code_max):
+        if len(results) == 1 and (code is None or code <= settings.final_code_max) and in_sizes[name] is not False:
             break
-    winner, scores = decide(class_record["scores"], {k: t["code"] for k, t in terms.items()}, settings)
+    winner, scores = decide(class_record["scores"], {k: t["code"] for k, t in terms.items()}, settings, in_sizes)
     ranked = sorted(scores.values())
     record = {"compared": list(results), "code_max": settings.final_code_max,
-              "code_weight": settings.final_code_weight,
+              "code_weight": settings.final_code_weight, "size_margin": settings.final_size_margin,
+              "in_sizes": in_sizes,
               "scores": {k: round(v, 5) for k, v in scores.items()},
               "margin": round(ranked[1] - ranked[0], 5) if len(ranked) > 1 else None,
               "terms": {k: {n: None if v is None else round(v, 5) for n, v in t.items()} for k, t in terms.items()},

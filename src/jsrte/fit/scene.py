@@ -154,12 +154,13 @@ less; cuts within one object ran from 0.0007 to 0.02."""
 
 
 SCENE_SCREEN = ScreenSettings(fit=replace(SCREEN_FIT, init_scale="both"),
-                              class_fit=replace(CLASS_FIT, init_scale="both"))
+                              class_fit=replace(CLASS_FIT, init_scale="both"), final_size_margin=None)
 """The quick fits of a scene's candidates: every yaw starts at the height's scale and, where it
 differs by more than 10%, at the bounding sphere's too (``FitSettings.init_scale`` "both"), the
 forward-pass screen keeping the best four of all. Beds, sofas and tables vary in proportions far
 more than chairs; a bed's quick fit started from its height alone can end far off, and the
-judgement then cuts the bed into pieces."""
+judgement then cuts the bed into pieces. A scene weighs each fit's size after the class is
+chosen instead (:data:`SIZE_MARGIN`)."""
 
 
 PART_EXPLAINED = 0.05

@@ -118,6 +118,12 @@ class ScreenSettings:
     final_code_weight: float = 0.02
     """Weight of the code's ratio in the final score of a fully fitted class (its class score
     plus this times the ratio)."""
+    final_size_margin: float | None = 1.3
+    """A full fit whose radius lies outside its class's sizes (``jsrte.model.sizes``: its
+    training shapes') widened by this each way is no evidence for the class (a sofa model
+    stretched over a bed): the next contending class is fitted in full too, and a class whose
+    fit lies within its sizes wins over one whose fit does not. None: sizes are not weighed (nor
+    where a model records none)."""
     slab_m: float = 0.08
     """A candidate thinner than this (m) across its thinnest direction (:func:`thickness`) is a
     slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs

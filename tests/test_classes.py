@@ -142,3 +142,31 @@ def test_a_fit_outside_its_class_sizes_calls_the_runner_up_and_loses_to_a_fit_wi
     fitted.clear()
     assert fit_contenders({"ball": query, "pair": query}, models, options, screen_record, settings=off) is fits["ball"]
     assert fitted == ["ball"]
+
+
+def test_where_both_compared_fits_lie_outside_their_sizes_the_third_class_is_fitted_on_the_best_object(monkeypatch):
+    """A bed scan whose screen ranks sofa, table, bed within the margin: the sofa and the table
+    fits both end at a bed's size, outside their classes' sizes; the bed, third, is fitted on the
+    sofa's object and wins."""
+    fit_module = importlib.import_module("jsrte.fit")
+    query, models = _ball_and_blob()
+    sizes = {"smallest": 0.9, "median": 1.0, "largest": 1.1, "shapes": 10}
+    models = {name: DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": name, "sizes_m": sizes})
+              for name in ("sofa", "table", "bed", "chair")}
+    models["bed"].meta["sizes_m"] = {"smallest": 1.8, "median": 2.0, "largest": 2.2, "shapes": 10}
+    fits = {"sofa": _fit(2.0, 0.5), "table": _fit(2.0, 0.5), "bed": _fit(2.0, 0.5)}
+    fitted = []
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False):
+        fitted.append((model.meta["name"], query))
+        return fits[model.meta["name"]]
+
+    monkeypatch.setattr(fit_module, "fit_recorded", fit_recorded)
+    other = SdfQuery(query.surface[:10], np.zeros(10), query.surface[:10])
+    screen_record = {"chosen": "sofa", "chosen_by": "fit", "margin": 0.002, "refitted": [],
+                     "scores": {"sofa": 0.030, "table": 0.032, "bed": 0.034, "chair": 0.09}}
+    options = type("Options", (), {"seed": 0})()
+    result = fit_contenders({"sofa": query, "table": other}, models, options, screen_record)
+    assert [name for name, _ in fitted] == ["sofa", "table", "bed"] and fitted[2][1] is query
+    assert result is fits["bed"] and result.info["class"]["final"]["in_sizes"] == {
+        "sofa": False, "table": False, "bed": True}

@@ -23,12 +23,13 @@ right one (docs/clutter.md).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from jsrte.fit.query import SdfQuery
-from jsrte.fit.screen import ScreenSettings, screen_terms
+from jsrte.fit.screen import ScreenSettings, contending, screen_terms
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.result import FitResult
 
@@ -86,35 +87,70 @@ def fit_contenders(objects: dict[str, SdfQuery], models: dict[str, DeepSdfModel]
     """Fit the best contending class's object in full (``objects``: class -> its object, the
     screen's best first; ``options``: the fit's ``FitOptions``); where its code is atypical
     (ratio above ``final_code_max``) or its size none of its class's (:func:`within_sizes`,
-    ``final_size_margin``), fit the others too and keep the lowest final score among the fits
-    within their sizes (:func:`decide`). The kept fit's fit.json ``class`` block is ``class_record`` (the
-    screen's: its ``scores`` are the class scores) with ``chosen``, ``chosen_by`` ("fit": the
-    screen; "final fit": the final scores) and ``final``: the classes ``compared`` (fitted in
-    full), each one's ``terms`` (:func:`final_terms`) and final ``scores``, the ``margin``
-    between the best two, and each compared fit's decoder evaluations and seconds."""
-    from jsrte.fit import fit_recorded
+    ``final_size_margin``), fit the others too; where every fit lies outside its sizes, the
+    next contending classes (``final_size_classes``) too, on the best class's object. The lowest
+    final score among the fits within their sizes wins (:func:`decide`).
 
-    results: dict[str, FitResult] = {}
-    terms: dict[str, dict[str, float | None]] = {}
-    in_sizes: dict[str, bool | None] = {}
+    The kept fit's fit.json ``class`` block is ``class_record`` (the screen's: its ``scores`` are
+    the class scores) with ``chosen``, ``chosen_by`` ("fit": the screen; "final fit": the final
+    scores) and ``final``: the classes ``compared`` (fitted in full), each one's ``terms``
+    (:func:`final_terms`), ``in_sizes`` and final ``scores``, the ``margin`` between the best
+    two, and each compared fit's decoder evaluations and seconds."""
+    compared = _Compared(models, objects, options, settings, progress)
     for name, query in objects.items():
-        results[name] = fit_recorded(models[name], query, options, progress=progress)
-        terms[name] = final_terms(models[name], results[name], objects, settings, seed=options.seed)
-        in_sizes[name] = within_sizes(models[name], results[name], settings.final_size_margin)
-        code = terms[name]["code"]
-        if len(results) == 1 and (code is None or code <= settings.final_code_max) and in_sizes[name] is not False:
+        compared.fit(name, query)
+        if len(compared.results) == 1 and compared.settles(name):
             break
-    winner, scores = decide(class_record["scores"], {k: t["code"] for k, t in terms.items()}, settings, in_sizes)
-    ranked = sorted(scores.values())
-    record = {"compared": list(results), "code_max": settings.final_code_max,
-              "code_weight": settings.final_code_weight, "size_margin": settings.final_size_margin,
-              "in_sizes": in_sizes,
-              "scores": {k: round(v, 5) for k, v in scores.items()},
-              "margin": round(ranked[1] - ranked[0], 5) if len(ranked) > 1 else None,
-              "terms": {k: {n: None if v is None else round(v, 5) for n, v in t.items()} for k, t in terms.items()},
-              "decoder_evaluations": {k: r.info.get("decoder_evaluations") for k, r in results.items()},
-              "seconds": {k: r.timing.get("total") for k, r in results.items()}}
-    result = results[winner]
-    result.info["class"] = class_record | {"chosen": winner, "chosen_by": "final fit" if len(results) > 1 else "fit",
-                                           "final": record}
+    if all(inside is False for inside in compared.in_sizes.values()):
+        first = next(iter(objects.values()))
+        wider = contending(class_record["scores"], replace(settings, final_classes=settings.final_size_classes))
+        for name in [n for n in wider if n not in compared.results and n in models]:
+            if compared.fit(name, first) is not False:
+                break
+    winner, scores = decide(class_record["scores"], {k: t["code"] for k, t in compared.terms.items()}, settings,
+                            compared.in_sizes)
+    result = compared.results[winner]
+    result.info["class"] = class_record | {"chosen": winner,
+                                           "chosen_by": "final fit" if len(compared.results) > 1 else "fit",
+                                           "final": compared.record(scores)}
     return result
+
+
+class _Compared:
+    """The full fits of the classes compared so far, their terms and whether each lies within
+    its class's sizes."""
+
+    def __init__(self, models: dict[str, DeepSdfModel], objects: dict[str, SdfQuery], options: object,
+                 settings: ScreenSettings, progress: bool) -> None:
+        self.models, self.objects, self.options = models, objects, options
+        self.settings, self.progress = settings, progress
+        self.results: dict[str, FitResult] = {}
+        self.terms: dict[str, dict[str, float | None]] = {}
+        self.in_sizes: dict[str, bool | None] = {}
+
+    def fit(self, name: str, query: SdfQuery) -> bool | None:
+        """Fit class ``name`` to ``query`` in full; whether its fit lies within its sizes."""
+        from jsrte.fit import fit_recorded
+
+        model = self.models[name]
+        self.results[name] = fit_recorded(model, query, self.options, progress=self.progress)
+        self.terms[name] = final_terms(model, self.results[name], self.objects, self.settings, seed=self.options.seed)
+        self.in_sizes[name] = within_sizes(model, self.results[name], self.settings.final_size_margin)
+        return self.in_sizes[name]
+
+    def settles(self, name: str) -> bool:
+        """Whether ``name``'s fit alone settles the class: a typical code, a size of its class's."""
+        code = self.terms[name]["code"]
+        return (code is None or code <= self.settings.final_code_max) and self.in_sizes[name] is not False
+
+    def record(self, scores: dict[str, float]) -> dict[str, Any]:
+        """fit.json's ``final`` record of the comparison, with the final ``scores``."""
+        ranked = sorted(scores.values())
+        return {"compared": list(self.results), "code_max": self.settings.final_code_max,
+                "code_weight": self.settings.final_code_weight, "size_margin": self.settings.final_size_margin,
+                "in_sizes": self.in_sizes, "scores": {k: round(v, 5) for k, v in scores.items()},
+                "margin": round(ranked[1] - ranked[0], 5) if len(ranked) > 1 else None,
+                "terms": {k: {n: None if v is None else round(v, 5) for n, v in t.items()}
+                          for k, t in self.terms.items()},
+                "decoder_evaluations": {k: r.info.get("decoder_evaluations") for k, r in self.results.items()},
+                "seconds": {k: r.timing.get("total") for k, r in self.results.items()}}

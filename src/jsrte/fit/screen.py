@@ -124,6 +124,10 @@ class ScreenSettings:
     stretched over a bed): the next contending class is fitted in full too, and a class whose
     fit lies within its sizes wins over one whose fit does not. None: sizes are not weighed (nor
     where a model records none)."""
+    final_size_classes: int = 3
+    """Where every class fitted in full lies outside its sizes, the next contending classes (up
+    to this many in all, each within ``final_margin`` of the best) are fitted in full on the best
+    class's object, until one lies within its sizes."""
     slab_m: float = 0.08
     """A candidate thinner than this (m) across its thinnest direction (:func:`thickness`) is a
     slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs

@@ -142,6 +142,20 @@ def test_a_tiny_run_end_to_end(tmp_path, run_cli, monkeypatch):
     assert float(summary["seconds_per_scene"]) > 0 and "detection recall" in text and "| chair |" in text
 
 
+def test_the_rooms_are_fitted_with_the_arithmetic_asked_for(tmp_path, run_cli, monkeypatch):
+    from jsrte.experiments import scenes
+
+    monkeypatch.setattr(scenes, "ROOM_SETTINGS", small_rooms())
+    out = tmp_path / "run"
+    code, _, err = run_cli(["experiment", "scenes", "--out", str(out), "--rooms", "1", "--first", "3",
+                            "--objects", "2,2", "--model", "chair", "--preset", "smoke", "--threads", "1",
+                            "--dtype", "bfloat16", "--no-report"])
+    assert code == 0, err
+    assert json.loads((out / "config.json").read_text())["dtype"] == "bfloat16"
+    fits = list((out / "fits/003/objects").glob("*/fit.json"))  # smoke alone would fit in float32
+    assert fits and all(json.loads(f.read_text())["decoder_dtype"] == "bfloat16" for f in fits)
+
+
 def test_bad_input_is_a_one_line_error(tmp_path, run_cli):
     done = tmp_path / "done"
     done.mkdir()
@@ -150,7 +164,8 @@ def test_bad_input_is_a_one_line_error(tmp_path, run_cli):
     assert code != 0 and "--overwrite" in err and err.strip().count("\n") == 0
     assert (done / "summary.md").read_text() == "earlier"
     for args, word in ((["--rooms", "0"], "--rooms"), (["--objects", "0,3"], "--objects"),
-                       (["--objects", "x"], "--objects"), (["--jobs", "0"], "--jobs")):
+                       (["--objects", "x"], "--objects"), (["--jobs", "0"], "--jobs"),
+                       (["--dtype", "half"], "--dtype")):
         code, _, err = run_cli(["experiment", "scenes", "--out", str(tmp_path / "new"), *args])
         assert code != 0 and word in err and err.strip().count("\n") == 0
         assert not (tmp_path / "new").exists()

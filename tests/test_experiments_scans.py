@@ -66,3 +66,11 @@ def test_experiment_cli_refuses_own_sizes_in_rooms(tmp_path, run_cli):
     code, _, stderr = run_cli(["experiment", "scans", "--out", str(tmp_path / "o"), "--clutter",
                                "--sizes", "own"])
     assert code == 2 and "--sizes" in stderr and stderr.count("\n") == 1 and not (tmp_path / "o").exists()
+
+
+def test_the_experiment_fits_with_the_arithmetic_asked_for(tiny_model, cases):
+    from jsrte.experiments.scans import run_method
+
+    kwargs = dict(model=tiny_model, database=None, preset="smoke", seed=0)
+    assert run_method("jsrte", cases[0], **kwargs).info["decoder_dtype"] == "float32"  # smoke's own
+    assert run_method("jsrte", cases[0], dtype="bfloat16", **kwargs).info["decoder_dtype"] == "bfloat16"

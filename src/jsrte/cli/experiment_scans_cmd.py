@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from jsrte.cli import fit_options as opt
 from jsrte.cli.common import check_out_folder, check_threads, set_threads
 from jsrte.cli.experiment_cmd import experiment_app, split_names
 from jsrte.errors import JsrteError
@@ -34,6 +35,7 @@ def scans_command(
     clutter: bool = typer.Option(False, "--clutter", help="Scan each shape in a room: walls, a table and boxes "
                                                           "beside it, one touching it (docs/clutter.md)."),
     first: int = typer.Option(0, help="First evaluation-set index of the virtual scans (0: Table 2's)."),
+    dtype: str = opt.DTYPE,
     sizes: str = typer.Option("drawn", help="drawn: each shape scaled to a height drawn from 0.6-1.2 m, whatever "
                                             "its class (Table 2's protocol); own: each at its own size in metres "
                                             "(clean scans only)."),
@@ -53,6 +55,7 @@ def scans_command(
         raise JsrteError(f"unknown --sizes {sizes!r} (known: {', '.join(SIZES)})")
     if clutter and sizes != "drawn":
         raise JsrteError("--sizes own is for clean scans: in a room (--clutter) the shape stands at a drawn height")
+    opt.check_dtype(dtype)
     if jobs < 1:
         raise JsrteError(f"--jobs must be positive, got {jobs}")
     check_threads(threads)
@@ -68,5 +71,6 @@ def scans_command(
                  else virtual_cases(category, scans or SCALES[scale], folder_out / "scans", seed=seed,
                                     first=first, clutter=clutter, sizes=sizes))
         run_scan_experiment(cases, list(chosen), folder_out, model=loaded, preset=preset, seed=seed,
-                            jobs=jobs, threads=threads or None, report=html_report, category=category)
+                            jobs=jobs, threads=threads or None, report=html_report, category=category,
+                            dtype=dtype)
     typer.echo((out / "table.md").read_text())

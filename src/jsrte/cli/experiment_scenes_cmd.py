@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from jsrte.cli import fit_options as opt
 from jsrte.cli.common import check_out_folder, check_threads, set_threads
 from jsrte.cli.experiment_cmd import experiment_app
 from jsrte.errors import JsrteError
@@ -26,6 +27,7 @@ def scenes_command(
     model: str = typer.Option("auto", help="The models each object's class is chosen among: auto (every shipped "
                                            "model) or a comma-separated list."),
     preset: str = typer.Option(SCENE_PRESET, help=f"Fit preset: {', '.join(PRESETS)}."),
+    dtype: str = opt.DTYPE,
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     jobs: int = typer.Option(1, help="Rooms run in this many processes at once (threads shared among them)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
@@ -48,6 +50,7 @@ def scenes_command(
         raise JsrteError(f"--jobs must be positive, got {jobs}")
     if preset not in PRESETS:
         raise JsrteError(f"unknown preset {preset!r}; known: {', '.join(PRESETS)}")
+    opt.check_dtype(dtype)
     if resume and overwrite:
         raise JsrteError("--resume continues the run in --out, --overwrite replaces it: give one")
     check_threads(threads)
@@ -59,7 +62,7 @@ def scenes_command(
     elif not (out / CONFIG_NAME).is_file():
         raise JsrteError(f"holds no run to resume ({CONFIG_NAME} is missing)", out)
     model_names(model)  # "auto" without any shipped model is an error now, not after the first room
-    config = ScenesConfig(rooms=rooms, first=first, seed=seed, preset=preset, model=model,
+    config = ScenesConfig(rooms=rooms, first=first, seed=seed, preset=preset, dtype=dtype, model=model,
                           objects=_count_range(objects, "objects", 2, 9))
     set_threads(threads)
     with output_dir(out, overwrite=True, keep=lambda folder: (folder / OBJECTS_NAME).is_file()) as folder:

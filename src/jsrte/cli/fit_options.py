@@ -57,8 +57,7 @@ def fit_options(*, preset: str = DEFAULT_PRESET, up: str | None = None, viewpoin
     from jsrte.cli.common import resolve_device
 
     check_preset(preset)
-    if dtype is not None and dtype not in DECODER_DTYPES:
-        raise JsrteError(f"--dtype must be one of {', '.join(DECODER_DTYPES)}, got {dtype!r}")
+    check_dtype(dtype)
     if hypotheses is not None and hypotheses < 1:
         raise JsrteError(f"--hypotheses must be positive, got {hypotheses}")
     points = parse_points(viewpoint)
@@ -105,3 +104,9 @@ def three_numbers(text: str, name: str) -> np.ndarray:
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise JsrteError(f"{name} must be three finite numbers X,Y,Z, got {text!r}")
     return v
+
+
+def check_dtype(dtype: str | None) -> None:
+    """A one-line error for a ``--dtype`` that is none of ``DECODER_DTYPES`` (None: the preset's)."""
+    if dtype is not None and dtype not in DECODER_DTYPES:
+        raise JsrteError(f"--dtype must be one of {', '.join(DECODER_DTYPES)}, got {dtype!r}")

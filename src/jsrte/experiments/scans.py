@@ -113,12 +113,13 @@ def folder_cases(folder: Path) -> list[ScanCase]:
 
 
 def run_method(method: str, case: ScanCase, *, model: object, database: object, preset: str,
-               seed: int) -> FitResult:
-    """One method on one scan. Baselines see the scan prepared exactly as the fit does."""
+               seed: int, dtype: str | None = None) -> FitResult:
+    """One method on one scan (``dtype``: jsrte's decoder arithmetic, None: the preset's).
+    Baselines see the scan prepared exactly as the fit does."""
     if method == "jsrte":
         from jsrte.fit import fit
 
-        return fit(case.path, model=model, preset=preset, seed=seed)
+        return fit(case.path, model=model, preset=preset, seed=seed, dtype=dtype)
     from jsrte.baselines import get_baseline
     from jsrte.scans.io import load_scan, read_scan_info
     from jsrte.scans.preprocess import prepare_scan
@@ -133,7 +134,7 @@ def run_method(method: str, case: ScanCase, *, model: object, database: object, 
 def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *, model: object,
                         preset: str = "fast", seed: int = 0, figure_scans: int = 4,
                         progress: bool = True, jobs: int = 1, threads: int | None = None,
-                        report: bool = True, category: str | None = None) -> list[dict]:
+                        report: bool = True, category: str | None = None, dtype: str | None = None) -> list[dict]:
     """Every method on every scan; writes results.csv, table.md, table.csv, figure PNGs and, with
     ``report``, report.html (a 3D view of each scan's jsrte fit, as ``jsrte report``).
 
@@ -144,7 +145,7 @@ def run_scan_experiment(cases: list[ScanCase], methods: list[str], out: Path, *,
     from tqdm import tqdm
 
     database = _database(model) if any(m != "jsrte" for m in methods) else None
-    context = _CaseContext(methods, model, database, preset, seed)
+    context = _CaseContext(methods, model, database, preset, seed, dtype)
     rows: list[dict] = []
     figures: list[Path] = []
     html = _HtmlReport() if report else None
@@ -218,6 +219,7 @@ class _CaseContext:
     database: object
     preset: str
     seed: int
+    dtype: str | None = None
 
     def run(self, case: ScanCase) -> tuple[list[dict], dict]:
         """Rows (one per method) and the results by method, for one scan."""
@@ -231,7 +233,7 @@ class _CaseContext:
             started = time.perf_counter()
             try:
                 result = run_method(method, case, model=self.model, database=self.database,
-                                    preset=self.preset, seed=self.seed)
+                                    preset=self.preset, seed=self.seed, dtype=self.dtype)
             except JsrteError as exc:
                 row.update(status="failed", error=str(exc))
                 result = None

@@ -62,6 +62,8 @@ class ScenesConfig:
     first: int = 0
     seed: int = 0
     preset: str = SCENE_PRESET
+    dtype: str | None = None
+    """The decoder's arithmetic while the fits move (None: the preset's, ``FitSettings.decoder_dtype``)."""
     model: str = "auto"
     objects: tuple[int, int] = OBJECTS
     box_share: float = BOX_SHARE
@@ -145,7 +147,7 @@ def run_room(room: int, config: ScenesConfig, out: Path) -> list[dict]:
     truth = true_objects(drawn)
     started = time.perf_counter()
     try:
-        scene = fit_scene(scan, model=config.model, preset=config.preset, seed=config.seed)
+        scene = fit_scene(scan, model=config.model, preset=config.preset, seed=config.seed, dtype=config.dtype)
     except JsrteError as exc:  # no object left: every true object is missed
         scene, failure = None, str(exc)
     seconds = time.perf_counter() - started

@@ -33,7 +33,7 @@ STAGES = ("start-up", "load", "floor and cleaning", "normals", "query samples", 
 """Rows of the table, in pipeline order ("other": time inside the fit outside every named stage)."""
 
 
-def fit_one(scan: Path, *, preset: str, model: str, seed: int, threads: int) -> dict:
+def fit_one(scan: Path, *, preset: str, model: str, seed: int, threads: int, device: str = "cpu") -> dict:
     """In this process: fit ``scan`` and write its outputs as ``jsrte fit`` does; the stage profile."""
     import torch
 
@@ -45,7 +45,7 @@ def fit_one(scan: Path, *, preset: str, model: str, seed: int, threads: int) -> 
     torch.set_num_threads(threads)
     with profiling() as profile, tempfile.TemporaryDirectory() as folder:
         name, _, dtype = preset.partition(":")
-        result = fit(scan, model=model, preset=name, seed=seed, dtype=dtype or None)
+        result = fit(scan, model=model, preset=name, seed=seed, dtype=dtype or None, device=device)
         with stage("outputs"):
             write_fit_outputs(result, Path(folder), query_points=load_scan(scan).points,
                               up=result.info.get("up"), extra={"input": str(scan)})
@@ -75,10 +75,10 @@ def truth_fscore(scan: Path, result: object, seed: int) -> float | None:
     return float(score_against_truth(result, truth, rng=np.random.default_rng(seed))["fscore"])
 
 
-def run_fresh(scan: Path, *, preset: str, model: str, seed: int, threads: int) -> dict:
+def run_fresh(scan: Path, *, preset: str, model: str, seed: int, threads: int, device: str = "cpu") -> dict:
     """Fit ``scan`` in a new Python process; its profile plus "start-up" (wall time not in any stage)."""
     command = [sys.executable, __file__, "--one", str(scan), "--preset", preset, "--model", model,
-               "--seed", str(seed), "--threads", str(threads)]
+               "--seed", str(seed), "--threads", str(threads), "--device", device]
     started, cpu_started = time.perf_counter(), _children_cpu()
     proc = subprocess.run(command, capture_output=True, text=True)
     wall, cpu = time.perf_counter() - started, _children_cpu() - cpu_started
@@ -163,12 +163,14 @@ def main() -> None:
     parser.add_argument("--model", default="chair", help="shipped model name or model file")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2, help="torch threads (the machine's 2 cores)")
+    parser.add_argument("--device", default="cpu", help="where the decoder runs (cuda: a GPU that PyTorch sees; "
+                                                         "the stages' seconds then end when their kernels are queued)")
     parser.add_argument("--out", type=Path, help="also write the table to this markdown file")
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)  # the child process
     args = parser.parse_args()
     if args.one:
         print(json.dumps(fit_one(args.scans[0], preset=args.preset, model=args.model, seed=args.seed,
-                                 threads=args.threads)))
+                                 threads=args.threads, device=args.device)))
         return
     for scan in args.scans:
         if not scan.is_file():
@@ -177,7 +179,8 @@ def main() -> None:
     for preset in filter(None, args.preset.split(",")):
         reports[preset] = []
         for scan in args.scans:
-            report = run_fresh(scan, preset=preset, model=args.model, seed=args.seed, threads=args.threads)
+            report = run_fresh(scan, preset=preset, model=args.model, seed=args.seed, threads=args.threads,
+                               device=args.device)
             reports[preset].append(report)
             print(f"{preset} {scan.name}: {report['wall']:.2f} s", file=sys.stderr, flush=True)
     text = table(reports, args.scans)

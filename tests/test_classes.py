@@ -53,6 +53,18 @@ def test_the_final_score_adds_the_codes_typicality_to_the_class_score():
     assert chosen == "bed"
 
 
+def _stub_full_fits(monkeypatch, fits: dict[str, FitResult]) -> list[tuple[str, SdfQuery]]:
+    """Make every full fit return ``fits[model name]``; the list of (model name, query) fitted."""
+    fitted = []
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False):
+        fitted.append((model.meta["name"], query))
+        return fits[model.meta["name"]]
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit"), "fit_recorded", fit_recorded)
+    return fitted
+
+
 def _ball_and_blob() -> tuple[SdfQuery, dict[str, DeepSdfModel]]:
     rng = np.random.default_rng(0)
     points = np.concatenate([_sphere_points(rng, 700, CENTRE, 1.0),
@@ -77,16 +89,9 @@ def test_the_runner_up_is_fitted_only_where_the_best_fit_needs_an_atypical_code(
     comes first; with a typical code (0.6) it stands and nothing else is fitted. With an atypical
     one (1.6, above ``final_code_max``) "pair" is fitted too, and its typical code (0.5) makes it
     the class: fit.json's ``class`` records what was compared."""
-    fit_module = importlib.import_module("jsrte.fit")
     query, models = _ball_and_blob()
     fits = {"ball": _fit(2.0, ball_code), "pair": _fit(2.0, 0.5)}
-    fitted = []
-
-    def fit_recorded(model, query, options, *, class_choice=None, progress=False):
-        fitted.append(model.meta["name"])
-        return fits[model.meta["name"]]
-
-    monkeypatch.setattr(fit_module, "fit_recorded", fit_recorded)
+    fitted = _stub_full_fits(monkeypatch, fits)
     screen_record = {"chosen": "ball", "chosen_by": "fit", "scores": {"ball": 0.030, "pair": 0.032},
                      "margin": 0.002, "refitted": []}
     settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02)
@@ -96,11 +101,11 @@ def test_the_runner_up_is_fitted_only_where_the_best_fit_needs_an_atypical_code(
     assert record["scores"] == screen_record["scores"]  # the screen's record is kept
     final = record["final"]
     if ball_code < 0.9:
-        assert fitted == ["ball"] and result is fits["ball"]
+        assert [n for n, _ in fitted] == ["ball"] and result is fits["ball"]
         assert record["chosen"] == "ball" and record["chosen_by"] == "fit"
         assert final["compared"] == ["ball"] and final["margin"] is None
         return
-    assert fitted == ["ball", "pair"] and result is fits["pair"]
+    assert [n for n, _ in fitted] == ["ball", "pair"] and result is fits["pair"]
     assert record["chosen"] == "pair" and record["chosen_by"] == "final fit"
     assert final["compared"] == ["ball", "pair"]
     assert final["scores"] == pytest.approx({"ball": 0.030 + 0.02 * 1.6, "pair": 0.032 + 0.02 * 0.5})
@@ -115,17 +120,10 @@ def test_a_fit_outside_its_class_sizes_calls_the_runner_up_and_loses_to_a_fit_wi
     lies outside the ball model's sizes (0.9-1.1 m, widened by 1.3: 0.69-1.43 m) "pair" is
     fitted too and wins, though its final score is higher: a size none of its class's is no
     evidence for the class."""
-    fit_module = importlib.import_module("jsrte.fit")
     query, models = _ball_and_blob()
     models["ball"].meta["sizes_m"] = {"smallest": 0.9, "median": 1.0, "largest": 1.1, "shapes": 10}
     fits = {"ball": _fit(ball_scale, 0.6), "pair": _fit(1.0, 0.8)}
-    fitted = []
-
-    def fit_recorded(model, query, options, *, class_choice=None, progress=False):
-        fitted.append(model.meta["name"])
-        return fits[model.meta["name"]]
-
-    monkeypatch.setattr(fit_module, "fit_recorded", fit_recorded)
+    fitted = _stub_full_fits(monkeypatch, fits)
     screen_record = {"chosen": "ball", "chosen_by": "fit", "scores": {"ball": 0.030, "pair": 0.032},
                      "margin": 0.002, "refitted": []}
     settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02, final_size_margin=1.3)
@@ -133,35 +131,29 @@ def test_a_fit_outside_its_class_sizes_calls_the_runner_up_and_loses_to_a_fit_wi
     result = fit_contenders({"ball": query, "pair": query}, models, options, screen_record, settings=settings)
     final = result.info["class"]["final"]
     if ball_scale == 1.0:
-        assert fitted == ["ball"] and result is fits["ball"] and final["in_sizes"] == {"ball": True}
+        assert [n for n, _ in fitted] == ["ball"] and result is fits["ball"] and final["in_sizes"] == {"ball": True}
         return
-    assert fitted == ["ball", "pair"] and result is fits["pair"] and result.info["class"]["chosen"] == "pair"
+    assert [n for n, _ in fitted] == ["ball", "pair"] and result is fits["pair"]
+    assert result.info["class"]["chosen"] == "pair"
     assert final["in_sizes"] == {"ball": False, "pair": None}  # the pair model records no sizes
     assert final["scores"]["pair"] > final["scores"]["ball"]
     off = ScreenSettings(final_code_max=0.9, final_code_weight=0.02, final_size_margin=None)
     fitted.clear()
     assert fit_contenders({"ball": query, "pair": query}, models, options, screen_record, settings=off) is fits["ball"]
-    assert fitted == ["ball"]
+    assert [n for n, _ in fitted] == ["ball"]
 
 
 def test_where_both_compared_fits_lie_outside_their_sizes_the_third_class_is_fitted_on_the_best_object(monkeypatch):
     """A bed scan whose screen ranks sofa, table, bed within the margin: the sofa and the table
     fits both end at a bed's size, outside their classes' sizes; the bed, third, is fitted on the
     sofa's object and wins."""
-    fit_module = importlib.import_module("jsrte.fit")
     query, models = _ball_and_blob()
     sizes = {"smallest": 0.9, "median": 1.0, "largest": 1.1, "shapes": 10}
     models = {name: DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": name, "sizes_m": sizes})
               for name in ("sofa", "table", "bed", "chair")}
     models["bed"].meta["sizes_m"] = {"smallest": 1.8, "median": 2.0, "largest": 2.2, "shapes": 10}
     fits = {"sofa": _fit(2.0, 0.5), "table": _fit(2.0, 0.5), "bed": _fit(2.0, 0.5)}
-    fitted = []
-
-    def fit_recorded(model, query, options, *, class_choice=None, progress=False):
-        fitted.append((model.meta["name"], query))
-        return fits[model.meta["name"]]
-
-    monkeypatch.setattr(fit_module, "fit_recorded", fit_recorded)
+    fitted = _stub_full_fits(monkeypatch, fits)
     other = SdfQuery(query.surface[:10], np.zeros(10), query.surface[:10])
     screen_record = {"chosen": "sofa", "chosen_by": "fit", "margin": 0.002, "refitted": [],
                      "scores": {"sofa": 0.030, "table": 0.032, "bed": 0.034, "chair": 0.09}}

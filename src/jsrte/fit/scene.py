@@ -372,6 +372,7 @@ def _mark_unexplained(obj: SceneObject, models: dict) -> None:
     """A fitted object whose fit lies on fewer than :data:`EXPLAINED_SHARE` of its points (or on
     no measured surface), or whose radius lies outside its class's sizes widened by
     :data:`SIZE_MARGIN`, becomes ``unexplained``, the share or the size in its reason."""
+    from jsrte.fit.classes import within_sizes
     from jsrte.model.sizes import model_sizes
 
     if obj.result is None:
@@ -382,12 +383,9 @@ def _mark_unexplained(obj: SceneObject, models: dict) -> None:
         obj.status = "unexplained"
         obj.reason = f"no model explains it: the {obj.model} fit lies on {lies_on}"
         return
-    sizes = model_sizes(models[obj.model].meta)
-    if sizes is None:
-        return
-    lo, hi = sizes.bounds(SIZE_MARGIN)
-    radius = float(obj.result.transform.s)
-    if not lo <= radius <= hi:
+    if within_sizes(models[obj.model], obj.result, SIZE_MARGIN) is False:
+        lo, hi = model_sizes(models[obj.model].meta).bounds(SIZE_MARGIN)
+        radius = float(obj.result.transform.s)
         obj.status = "unexplained"
         obj.reason = (f"no {obj.model} of its size: the fit's radius is {radius:.2f} m, "
                       f"the {obj.model} model's sizes {lo:.2f}-{hi:.2f} m")

@@ -13,3 +13,27 @@ def run_cli(monkeypatch, capsys):
         return _run_cli(monkeypatch, capsys, *args)
 
     return run
+
+
+@pytest.fixture
+def short_fits(monkeypatch):
+    """Shorten fits to 3 iterations and 16³ meshes, and record one setting of each:
+    ``short_fits("init_scale")`` returns the list each full fit's ``FitSettings.init_scale`` is
+    appended to; ``quick=True`` shortens and records the screen's quick fits too."""
+    import importlib
+    from dataclasses import replace
+
+    def spy(setting: str, *, quick: bool = False) -> list:
+        fitting, solve = importlib.import_module("jsrte.fit"), importlib.import_module("jsrte.fit.solve")
+        seen, original = [], solve.fit_query
+
+        def short_fit(model, query, settings, **kw):
+            seen.append(getattr(settings, setting))
+            return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
+
+        monkeypatch.setattr(fitting, "fit_query", short_fit)  # the full fits
+        if quick:
+            monkeypatch.setattr(solve, "fit_query", short_fit)  # the screen's quick fits
+        return seen
+
+    return spy

@@ -283,21 +283,10 @@ def test_a_scene_asks_a_whole_about_every_part_some_class_explains(monkeypatch):
 
 
 @pytest.mark.slow
-def test_a_preset_that_holds_each_class_to_its_sizes_holds_the_quick_fits_too(room_scan, monkeypatch):
-    import importlib
-
+def test_a_preset_that_holds_each_class_to_its_sizes_holds_the_quick_fits_too(room_scan, short_fits):
     from jsrte.fit import scene as scene_module
 
-    fitting, solve = importlib.import_module("jsrte.fit"), importlib.import_module("jsrte.fit.solve")
-    margins = []
-    original = solve.fit_query
-
-    def short_fit(model, query, settings, **kw):
-        margins.append(settings.size_margin)
-        return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
-
-    monkeypatch.setattr(solve, "fit_query", short_fit)
-    monkeypatch.setattr(fitting, "fit_query", short_fit)
+    margins = short_fits("size_margin", quick=True)
     scene_module.fit_scene(room_scan, model="chair,table", preset="sized")
     assert len(margins) >= 4 and set(margins) == {1.2}  # each candidate by each class, then the full fits
     assert scene_module.SCENE_SCREEN.fit.size_margin is None  # the default holds nothing

@@ -500,18 +500,11 @@ def test_a_piece_of_an_object_grows_over_the_points_its_fit_passes_through(monke
 
 
 @pytest.mark.slow
-def test_an_unknown_class_starts_every_full_fit_at_both_scales_unless_a_preset_is_named(tmp_path, monkeypatch):
+def test_an_unknown_class_starts_every_full_fit_at_both_scales_unless_a_preset_is_named(tmp_path, short_fits):
     """One object, class unknown: the default preset is ``fast-scales`` (each full fit started at
     the height's and the bounding sphere's scale); a named preset, or a known class, keeps its own."""
-    fitting, solve = importlib.import_module("jsrte.fit"), importlib.import_module("jsrte.fit.solve")
-    starts = []
-    original = solve.fit_query
-
-    def short_fit(model, query, settings, **kw):
-        starts.append(settings.init_scale)
-        return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
-
-    monkeypatch.setattr(fitting, "fit_query", short_fit)  # the full fits, not the screen's quick ones
+    fitting = importlib.import_module("jsrte.fit")
+    starts = short_fits("init_scale")  # the full fits, not the screen's quick ones
     scan = scan_mesh(held_out("table", 101), rng=np.random.default_rng(4))
     ply = write_scan(scan, tmp_path / "table.ply")
     unknown = fitting.fit(ply, model="chair,table", hypotheses=2)

@@ -43,7 +43,7 @@ def scans_command(
     """Every method on every scan; F@5% against the true shape and the scan, times, figures."""
     from jsrte.atomic import output_dir
     from jsrte.baselines import BASELINE_NAMES
-    from jsrte.experiments.scans import SCALES, SIZES, folder_cases, run_scan_experiment, virtual_cases
+    from jsrte.experiments.scans import SCALES, check_sizes, folder_cases, run_scan_experiment, virtual_cases
     from jsrte.fit import model_names
     from jsrte.model.registry import resolve_model
     from jsrte.presets import default_preset, names_several_models
@@ -51,10 +51,7 @@ def scans_command(
     chosen = split_names(methods, ("jsrte",) + BASELINE_NAMES, "method")
     if scale not in SCALES:
         raise JsrteError(f"unknown scale {scale!r} (known: {', '.join(SCALES)})")
-    if sizes not in SIZES:
-        raise JsrteError(f"unknown --sizes {sizes!r} (known: {', '.join(SIZES)})")
-    if clutter and sizes != "drawn":
-        raise JsrteError("--sizes own is for clean scans: in a room (--clutter) the shape stands at a drawn height")
+    check_sizes(sizes, clutter)
     opt.check_dtype(dtype)
     if jobs < 1:
         raise JsrteError(f"--jobs must be positive, got {jobs}")

@@ -48,6 +48,14 @@ SIZES = ("drawn", "own")
 its own size in metres (the procedural shapes are metric: a bed is a bed's size)."""
 
 
+def check_sizes(sizes: str, clutter: bool) -> None:
+    """A one-line error for ``sizes`` none of :data:`SIZES`, or ``own`` in a room (``clutter``)."""
+    if sizes not in SIZES:
+        raise JsrteError(f"unknown --sizes {sizes!r} (known: {', '.join(SIZES)})")
+    if clutter and sizes != "drawn":
+        raise JsrteError("--sizes own is for clean scans: in a room (--clutter) the shape stands at a drawn height")
+
+
 def virtual_cases(category: str, n: int, folder: Path, *, seed: int = 0, first: int = 0,
                   clutter: bool = False, sizes: str = "drawn") -> list[ScanCase]:
     """Scan ``n`` held-out shapes of ``category`` (evaluation set indices ``first``...) into
@@ -62,10 +70,7 @@ def virtual_cases(category: str, n: int, folder: Path, *, seed: int = 0, first: 
     from jsrte.scans.scanner import ScannerSettings, at_own_size, scan_mesh, write_scan
     from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 
-    if sizes not in SIZES:
-        raise JsrteError(f"unknown sizes {sizes!r} (known: {', '.join(SIZES)})")
-    if clutter and sizes != "drawn":
-        raise JsrteError("--sizes own is for clean scans; a room's shape stands at a drawn height")
+    check_sizes(sizes, clutter)
     if clutter:
         return _cluttered_cases(category, n, folder, seed=seed, first=first)
     cases = []

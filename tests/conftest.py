@@ -31,7 +31,7 @@ def short_fits(monkeypatch):
             seen.append(getattr(settings, setting))
             return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
 
-        monkeypatch.setattr(fitting, "fit_query", short_fit)  # the full fits
+        monkeypatch.setattr(fitting, "fit_with_retry", short_fit)  # the full fits (never fitted again)
         if quick:
             monkeypatch.setattr(solve, "fit_query", short_fit)  # the screen's quick fits
         return seen

@@ -225,17 +225,23 @@ def test_pruning_carries_the_kept_hypotheses_adam_moments(lshape):
         torch.testing.assert_close(p.detach(), q.detach()[keep], msg=name)
 
 
-def test_bfloat16_decoder_arithmetic_in_the_adam_steps_still_recovers_a_known_transform():
-    """``decoder_dtype="bfloat16"``: the losses of a real MLP decoder (the hand-set octahedron)
-    are computed with bfloat16 matrix products (they differ from float32's, by under 1%), and an
-    Adam fit with them recovers the scale and translation of a known similarity transform."""
+@pytest.fixture(scope="module")
+def octahedron_case():
+    """The hand-set octahedron MLP, a query of its shape under a known transform, the transform."""
     from analytic import octahedron_model
 
     model = octahedron_model()
     model.meta.update(canonical_height=1.0, canonical_radius=0.5)
     mesh = decode_mesh(model.decoder, torch.zeros(8), resolution=48).mesh
     truth, up = tilted_truth(theta=0.3)
-    query = make_query(mesh, truth, up, np.random.default_rng(2))
+    return model, make_query(mesh, truth, up, np.random.default_rng(2)), truth
+
+
+def test_bfloat16_decoder_arithmetic_in_the_adam_steps_still_recovers_a_known_transform(octahedron_case):
+    """``decoder_dtype="bfloat16"``: the losses of a real MLP decoder (the hand-set octahedron)
+    are computed with bfloat16 matrix products (they differ from float32's, by under 1%), and an
+    Adam fit with them recovers the scale and translation of a known similarity transform."""
+    model, query, truth = octahedron_case
     batch = HypothesisBatch([Init(truth.s, 0.0, 0.0, 0.0, truth.t)], 8, latent_init_std=0.0)
     points, sdf = torch.as_tensor(query.points[:2000]), torch.as_tensor(query.sdf[:2000])
     with torch.no_grad():
@@ -247,3 +253,55 @@ def test_bfloat16_decoder_arithmetic_in_the_adam_steps_still_recovers_a_known_tr
     result = fit_query(model, query, replace(SETTINGS, decoder_dtype="bfloat16", extract_resolution=32), seed=0)
     assert result.transform.s == pytest.approx(truth.s, rel=0.03)
     assert np.linalg.norm(result.transform.t - truth.t) < 0.05
+
+
+@pytest.mark.parametrize("float32_flag, float32_inliers, kept", [("ok", 0.5, "float32"),
+                                                                  ("doubtful", 0.5, "float32"),
+                                                                  ("ok", 0.2, "bfloat16")])
+def test_a_doubtful_bfloat16_fit_is_fitted_again_in_float32_and_the_better_kept(monkeypatch, octahedron_case,
+                                                                                 float32_flag, float32_inliers, kept):
+    """``float32_retry``: a bfloat16 fit flagged doubtful (here: made so, inlier share 0.3) is
+    fitted again in float32; the float32 fit is kept when its inlier share is higher, flagged
+    "ok" or not; fit.json records both, and the evaluations are both fits'."""
+    from jsrte.fit import solve
+    model, query, truth = octahedron_case
+    real, dtypes = solve.fit_query, []
+
+    def judged(*args, **kwargs):
+        result = real(*args, **kwargs)
+        dtypes.append(result.info["decoder_dtype"])
+        made = ("doubtful", 0.3) if dtypes[-1] == "bfloat16" else (float32_flag, float32_inliers)
+        result.flag, result.quality["inlier_share"] = made
+        return result
+
+    monkeypatch.setattr(solve, "fit_query", judged)
+    settings = replace(SETTINGS, iterations=40, decoder_dtype="bfloat16", extract_resolution=24, float32_retry=True)
+    result = solve.fit_with_retry(model, query, settings, seed=0)
+    assert dtypes == ["bfloat16", "float32"]
+    record = result.info["float32_retry"]
+    assert record["kept"] == kept == result.info["decoder_dtype"]
+    assert record["bfloat16"]["inlier_share"] == 0.3 and record["float32"]["flag"] == float32_flag
+    assert result.info["decoder_evaluations"] > real(model, query, settings, seed=0).info["decoder_evaluations"]
+    assert result.transform.s == pytest.approx(truth.s, rel=0.05)
+
+    dtypes.clear()
+    solve.fit_with_retry(model, query, replace(settings, float32_retry=False), seed=0)
+    assert dtypes == ["bfloat16"]
+
+
+def test_an_ok_bfloat16_fit_is_not_fitted_again(monkeypatch, octahedron_case):
+    """Only a doubtful bfloat16 fit is fitted again: an "ok" one is kept as it is."""
+    from jsrte.fit import solve
+    model, query, truth = octahedron_case
+    real, calls = solve.fit_query, []
+
+    def judged(*args, **kwargs):
+        result = real(*args, **kwargs)
+        calls.append(result.info["decoder_dtype"])
+        result.flag = "ok"
+        return result
+
+    monkeypatch.setattr(solve, "fit_query", judged)
+    settings = replace(SETTINGS, iterations=40, decoder_dtype="bfloat16", extract_resolution=24, float32_retry=True)
+    result = solve.fit_with_retry(model, query, settings, seed=0)
+    assert calls == ["bfloat16"] and "float32_retry" not in result.info

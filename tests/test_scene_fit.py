@@ -111,7 +111,7 @@ def test_a_failing_object_is_recorded_and_the_others_go_on(room_scan, monkeypatc
             raise JsrteError("too few points to fit")
         return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
 
-    monkeypatch.setattr(fitting, "fit_query", fit_or_fail)
+    monkeypatch.setattr(fitting, "fit_with_retry", fit_or_fail)
     scene = scene_module.fit_scene(room_scan, model="chair", preset="smoke")
     assert len(calls) == 2 and len(scene.objects) == 2
     failed, ok = scene.objects

@@ -255,6 +255,11 @@ class FitSettings:
     refine_iterations: int = 0
     """Gauss–Newton: after the Adam stage, at most this many Levenberg–Marquardt iterations on
     every survivor (the solve's last sample set) settle the code where the stage left it; 0: none."""
+    float32_retry: bool = False
+    """A full fit (``jsrte.fit.fit_recorded``) that moved in bfloat16 and ends flagged "doubtful"
+    is fitted again in float32 (``jsrte.fit.solve.fit_with_retry``), and the one with the higher
+    inlier share is kept: bfloat16's coarser products can tip a fit whose hypotheses lie close
+    into the wrong one (docs/presets.md)."""
 
     def __post_init__(self) -> None:
         """Every mode field holds one of its values (a typo is an error here, not a silent default)."""
@@ -287,7 +292,7 @@ FAST = Preset(
                     init_scale="height", selection="loss",
                     latent_space="whitened", latent_penalty=1e-5, latent_penalty_points=6000,
                     below_floor_samples=2000, below_floor_depth=(0.1, 4.0), scale_prior=0.05,
-                    line_of_sight_before_pruning=True, decoder_dtype="auto"),
+                    line_of_sight_before_pruning=True, decoder_dtype="auto", float32_retry=True),
 )
 """The default on a CPU: 5.3x fewer samples and 5x fewer iterations, yaw hypotheses pruned to
 the best four after 20 iterations and the best two after 60, scale initialized from the object's
@@ -296,7 +301,8 @@ space under a penalty that weakens as the scan's object points grow, the winner 
 its final loss rather than by F@5% against a partial scan; beyond the paper's samples, free
 space on the sensor's lines of sight (where the viewpoints are known, from the first iteration)
 and depth bounds under the floor from just below it; the decoder's matrix products in bfloat16
-where the device computes them natively (docs/presets.md)."""
+where the device computes them natively, and a fit they leave flagged doubtful fitted again in
+float32 (docs/presets.md)."""
 
 FAST_GAUSS_NEWTON = Preset(
     name="fast-gn",

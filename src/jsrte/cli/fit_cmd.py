@@ -139,6 +139,9 @@ def _report(result, out: Path) -> None:  # noqa: ANN001
         typer.echo(f"class {choice['chosen']}{margin}")
     typer.echo(f"winner by {result.criterion['name']}: {result.criterion['value']:.4f}; "
                f"time {result.timing['total']:.1f} s")
+    retry = result.info.get("float32_retry")
+    if retry is not None:
+        typer.echo(f"the bfloat16 fit was doubtful: fitted again in float32, kept the {retry['kept']} fit")
     if result.flag is not None:
         typer.echo(_quality_line(result.flag, result.quality))
     typer.echo(f"wrote {out}/fit.json, shape.ply, shape_canonical.ply, overlay.png")

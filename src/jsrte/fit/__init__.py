@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from jsrte.fit.query import SdfQuery
-from jsrte.fit.solve import fit_query
+from jsrte.fit.solve import fit_query, fit_with_retry
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.options import FitOptions
 from jsrte.result import FitResult
@@ -74,13 +74,14 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
 
 def fit_recorded(model: DeepSdfModel, query: SdfQuery, options: FitOptions, *, class_choice: dict | None = None,
                  progress: bool = False) -> FitResult:
-    """``fit_query`` with ``options``, the result carrying what fit.json records of how it was made
+    """``fit_with_retry`` (``fit_query``, again in float32 where a bfloat16 fit is doubtful and
+    the preset asks) with ``options``, the result carrying what fit.json records of how it was made
     (options, preset, model and its hash, the query's record, device, up, the class choice if any)."""
     from jsrte.model.decoder import decoder_device
 
     settings = options.settings()
-    result = fit_query(model, query, settings.fit, n_hypotheses=options.hypotheses, seed=options.seed,
-                       progress=progress)
+    result = fit_with_retry(model, query, settings.fit, n_hypotheses=options.hypotheses, seed=options.seed,
+                            progress=progress)
     result.query_points = query.surface
     result.info.update(options=options.record(), preset=settings.name, model=model.name,
                        model_sha256=model.meta.get("sha256"), query=query.info,

@@ -133,6 +133,36 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     return fitted
 
 
+def fit_with_retry(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
+                   n_hypotheses: int | None = None, seed: int = 0, progress: bool = False) -> FitResult:
+    """:func:`fit_query`, and where ``settings.float32_retry`` is set and the fit moved in
+    bfloat16 and ends flagged "doubtful", the same fit again in float32; the better of the two is
+    kept (:func:`_better`: the higher inlier share). fit.json's ``float32_retry`` records both
+    fits' flags, inlier shares and losses and which was kept; the decoder evaluations and seconds
+    are both fits' together."""
+    first = fit_query(model, query, settings, n_hypotheses=n_hypotheses, seed=seed, progress=progress)
+    if not (settings.float32_retry and first.flag == "doubtful" and first.info["decoder_dtype"] == "bfloat16"):
+        return first
+    again = fit_query(model, query, replace(settings, decoder_dtype="float32"), n_hypotheses=n_hypotheses,
+                      seed=seed, progress=progress)
+    kept = again if _better(again, first) else first
+    kept.info["float32_retry"] = {"kept": kept.info["decoder_dtype"]} | {
+        r.info["decoder_dtype"]: {"flag": r.flag, "inlier_share": r.quality.get("inlier_share"), "loss": r.loss}
+        for r in (first, again)}
+    kept.info["decoder_evaluations"] = first.info["decoder_evaluations"] + again.info["decoder_evaluations"]
+    kept.timing["total"] = round(first.timing["total"] + again.timing["total"], 2)
+    return kept
+
+
+def _better(a: FitResult, b: FitResult) -> bool:
+    """Whether fit ``a`` is to be kept over ``b``: a higher inlier share (the share of the
+    query's points on the fitted surface, jsrte.fit.quality; a fit without one counts 0)."""
+    def share(r: FitResult) -> float:
+        return float(r.quality.get("inlier_share") or 0.0)
+
+    return share(a) > share(b)
+
+
 def _dtype_used(settings: FitSettings, decoder: Decoder) -> str:
     """The decoder arithmetic the fit moved its hypotheses with: "bfloat16" or "float32"."""
     return "bfloat16" if uses_bfloat16(settings.decoder_dtype, decoder_device(decoder)) else "float32"

@@ -35,6 +35,9 @@ def test_settings_apply_line_of_sight_and_free_axis_to_the_preset():
     assert fast.fit.decoder_dtype == "auto" and get_preset("paper").fit.decoder_dtype == "float32"
     assert FitOptions(dtype="float32").settings().fit.decoder_dtype == "float32"
     assert FitOptions(preset="paper", dtype="bfloat16").settings().fit.decoder_dtype == "bfloat16"
+    assert fast.fit.float32_retry and not get_preset("paper").fit.float32_retry
+    assert not FitOptions(float32_retry=False).settings().fit.float32_retry
+    assert FitOptions(preset="paper", float32_retry=True).settings().fit.float32_retry
 
 
 def test_the_dtype_flag_is_checked_and_recorded(run_cli, tmp_path):
@@ -70,7 +73,8 @@ def test_every_fit_option_is_a_flag_of_fit_and_fit_many_and_the_query_ones_of_pr
     commands = typer.main.get_command(app).commands  # type: ignore[attr-defined]
     flag = {"viewpoints": "viewpoint"}  # repeatable: one flag per viewpoint
     every = {flag.get(f.name, f.name) for f in fields(FitOptions)}
-    query_only = every - {"hypotheses", "free_axis", "device", "dtype"}  # prepare: the fit-time ones go to jsrte fit
+    fit_time = {"hypotheses", "free_axis", "device", "dtype", "float32_retry"}  # prepare leaves them to jsrte fit
+    query_only = every - fit_time
     for name, wanted in (("fit", every), ("fit-many", every), ("prepare", query_only)):
         params = {p.name for p in commands[name].params}
         assert wanted <= params, (name, wanted - params)

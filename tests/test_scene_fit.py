@@ -292,6 +292,25 @@ def test_a_preset_that_holds_each_class_to_its_sizes_holds_the_quick_fits_too(ro
     assert scene_module.SCENE_SCREEN.fit.size_margin is None  # the default holds nothing
 
 
+@pytest.mark.slow
+def test_a_scene_keeps_its_doubtful_fits_unless_asked_to_fit_them_again_in_float32(room_scan, short_fits):
+    """A scene's full fits run without the float32 retry (``SCENE_FLOAT32_RETRY``) though its
+    preset has it; ``float32_retry=True`` asks for it; a single fit keeps the preset's."""
+    import importlib
+
+    from jsrte.fit import scene as scene_module
+
+    retries = short_fits("float32_retry")
+    scene_module.fit_scene(room_scan, model="chair")
+    assert retries and set(retries) == {False}
+    retries.clear()
+    scene_module.fit_scene(room_scan, model="chair", float32_retry=True)
+    assert retries and set(retries) == {True}
+    retries.clear()
+    importlib.import_module("jsrte.fit").fit(room_scan, model="chair")
+    assert retries == [True]
+
+
 def test_an_object_outside_its_class_sizes_is_recorded_but_not_found():
     """A fit whose radius lies outside its class's sizes widened by SIZE_MARGIN (a table model
     stretched over a bed) is unexplained, its size in the reason; inside them, or with a model

@@ -43,6 +43,9 @@ class FitOptions:
     units_check : refuse a scan whose object is implausibly large or small for metres
     dtype : the decoder's arithmetic while the hypotheses move ("auto", "float32", "bfloat16";
         None: the preset's, ``FitSettings.decoder_dtype``)
+    float32_retry : fit a bfloat16 fit flagged doubtful again in float32 and keep the one with
+        more inliers (None: the preset's, ``FitSettings.float32_retry``; a whole scene's default
+        is False)
     """
 
     preset: str = DEFAULT_PRESET
@@ -56,6 +59,7 @@ class FitOptions:
     device: str | None = None
     units_check: bool = True
     dtype: str | None = None
+    float32_retry: bool | None = None
 
     def __post_init__(self) -> None:
         """Check every option once: vectors (any sequence or array) become finite float tuples,
@@ -81,7 +85,7 @@ class FitOptions:
             raise JsrteError(f"unknown dtype {self.dtype!r}; known: {', '.join(DECODER_DTYPES)}")
 
     def settings(self) -> Preset:
-        """The preset with these options applied (line of sight, free axis, dtype)."""
+        """The preset with these options applied (line of sight, free axis, dtype, float32 retry)."""
         from jsrte.presets import get_preset, with_line_of_sight
 
         preset = get_preset(self.preset)
@@ -90,6 +94,8 @@ class FitOptions:
             preset = replace(preset, fit=replace(preset.fit, hold_axis=False))
         if self.dtype is not None:
             preset = replace(preset, fit=replace(preset.fit, decoder_dtype=self.dtype))
+        if self.float32_retry is not None:
+            preset = replace(preset, fit=replace(preset.fit, float32_retry=bool(self.float32_retry)))
         return preset
 
     def record(self) -> dict[str, object]:

@@ -39,6 +39,10 @@ AT = typer.Option(None, "--at", help="In a scan of several objects, fit the one 
 DTYPE = typer.Option(None, help="The decoder's arithmetic while the fit moves: auto (bfloat16 where the CPU or "
                                  "GPU has it natively, about twice as fast), float32 or bfloat16. Default: the "
                                  "preset's (auto; float32 in paper).")
+FLOAT32_RETRY = typer.Option(
+    None, "--float32-retry/--no-float32-retry",
+    help="Fit a bfloat16 fit flagged doubtful again in float32 and keep the one with more inliers (default: the "
+         "preset's: on in fast, fast-gn, fast-scales and sized; off with --scene; docs/presets.md).")
 HYPOTHESES = typer.Option(None, help="Number of θ starts (default: every 30°, 12).")
 SEED = typer.Option(0, help="Random seed.")
 DEVICE = typer.Option("cpu", help="Torch device: cpu, cuda or cuda:N (where PyTorch sees a GPU).")
@@ -51,7 +55,7 @@ UNITS_CHECK = typer.Option(
 def fit_options(*, preset: str = DEFAULT_PRESET, up: str | None = None, viewpoint: list[str] | None = None,
                 line_of_sight: bool | None = None, free_axis: bool = False, at: str | None = None,
                 hypotheses: int | None = None, seed: int = 0, device: str = "cpu",
-                units_check: bool = True, dtype: str | None = None) -> FitOptions:
+                units_check: bool = True, dtype: str | None = None, float32_retry: bool | None = None) -> FitOptions:
     """The flags' values (as typed) as checked :class:`FitOptions`; a one-line error naming the
     flag for a bad value."""
     from jsrte.cli.common import resolve_device
@@ -64,7 +68,8 @@ def fit_options(*, preset: str = DEFAULT_PRESET, up: str | None = None, viewpoin
     return FitOptions(preset=preset, up=parse_vector(up), viewpoints=None if points is None else points,
                       line_of_sight=line_of_sight, free_axis=free_axis,
                       at=None if at is None else three_numbers(at, "--at"), hypotheses=hypotheses, seed=seed,
-                      device=str(resolve_device(device)), units_check=units_check, dtype=dtype)
+                      device=str(resolve_device(device)), units_check=units_check, dtype=dtype,
+                      float32_retry=float32_retry)
 
 
 def check_preset(preset: str) -> str:

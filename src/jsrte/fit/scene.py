@@ -163,6 +163,14 @@ judgement then cuts the bed into pieces. A scene weighs each fit's size after th
 chosen instead (:data:`SIZE_MARGIN`)."""
 
 
+SCENE_FLOAT32_RETRY = False
+"""A scene's doubtful fits are kept as they are, not fitted again in float32
+(``FitSettings.float32_retry``): on the tuning rooms 100-107 the retry refitted 17 of the 39
+full fits (clutter leaves many doubtful), each a float32 fit more (about twice a bfloat16 fit's
+time), and moved class choices both ways: recall 0.77 -> 0.74, precision 0.73 -> 0.74, mean F@5%
+of the found objects 0.79 -> 0.82 (docs/clutter.md)."""
+
+
 PART_EXPLAINED = 0.05
 """A part of a split whose best screen score is at most this is explained well by some class
 (on the tuning rooms: 0.005-0.04 on parts that are most of one object; 0.07-0.1 on a wall's
@@ -216,6 +224,8 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     from jsrte.timing import stage
 
     options = (options or FitOptions(preset=SCENE_PRESET)).changed(**changes)
+    if options.float32_retry is None:
+        options = options.changed(float32_retry=SCENE_FLOAT32_RETRY)
     if options.at is not None:
         raise JsrteError("--scene fits every object; --at picks one (give one or the other)", path)
     with stage("load"):

@@ -334,6 +334,55 @@ def test_without_a_class_a_scene_cuts_weak_necks_and_keeps_the_whole():
     assert len(alone.candidates) == 1 and not alone.candidates[0].parts
 
 
+def test_a_cut_gives_a_scrap_apart_from_its_side_to_the_side_it_touches():
+    """A two-way cut that left a scrap of one body (touching it, 2 m from the rest of its side)
+    on the other's side: the scrap goes to the body it touches; a piece that touches neither
+    side (a leg seen apart) stays where the cut put it."""
+    from jsrte.scans.segment import _connected_sides
+
+    rng = np.random.default_rng(0)
+
+    def blob(centre: list[float], size: float, n: int) -> np.ndarray:
+        return np.asarray(centre) + rng.uniform(-size / 2, size / 2, size=(n, 3))
+
+    a = blob([0.0, 0.5, 0.0], 0.5, 3000)
+    b = blob([0.52, 0.5, 0.0], 0.5, 3000)  # 2 cm from a: one cluster
+    scrap = blob([2.0, 0.5, 0.0], 0.2, 300)
+    bridge = np.column_stack([np.linspace(0.77, 1.9, 200), np.full(200, 0.5), np.zeros(200)])  # b to scrap
+    leg = blob([-1.5, 0.2, 0.0], 0.1, 100)  # touches nothing
+    points = np.concatenate([a, b, bridge, scrap, leg])
+    side = np.r_[np.ones(3000, bool), np.zeros(3000 + 200, bool), np.ones(300 + 100, bool)]
+    moved = _connected_sides(points, side, eps=0.08)
+    assert moved[:3000].all() and not moved[3000:6500].any()  # the scrap joined b
+    assert moved[6500:].all()  # the leg stays with a
+    assert np.array_equal(_connected_sides(points, moved, eps=0.08), moved)  # nothing more to move
+
+
+@pytest.mark.parametrize("with_class", [False, True])
+def test_a_floating_top_may_be_cut_from_what_stands_beside_it_not_from_its_legs(with_class):
+    """A cut that leaves a flat part is refused where that part is a table's top over the other
+    part (its legs) or a slab on the floor; where the top floats beside the other part (a table
+    whose legs the scan did not see, and a chair beside it) it is kept when a class judges the
+    parts, and refused without one (a scene's flat pieces of beds and sofas)."""
+    from jsrte.scans.segment import _could_be_objects
+
+    move = trimesh.transformations.translation_matrix
+    top = _surface_points(trimesh.creation.box([1.0, 0.04, 0.6], transform=move([0, 0.73, 0])), 3000, 0)
+    legs = np.concatenate([_surface_points(trimesh.creation.box([0.05, 0.6, 0.05], transform=move([x, 0.3, z])),
+                                           300, k) for k, (x, z) in enumerate([(-0.45, -0.25), (0.45, 0.25)])])
+    beside = _surface_points(trimesh.creation.box([0.4, 0.8, 0.4], transform=move([0.9, 0.4, 0])), 2000, 3)
+    slab = top - [0.0, 0.7, 0.0]  # the same board lying on the floor
+    points = np.concatenate([top, legs, beside, slab])
+    parts = {"top": np.arange(3000), "legs": 3000 + np.arange(600), "beside": 3600 + np.arange(2000),
+             "slab": 5600 + np.arange(3000)}
+
+    def kept(a: str, b: str) -> bool:
+        return _could_be_objects([parts[a], parts[b]], points, points[:, 1], SegmentSettings(), with_class)
+
+    assert not kept("top", "legs") and not kept("slab", "beside") and kept("legs", "beside")
+    assert kept("top", "beside") == with_class
+
+
 def test_nothing_left_says_what_was_removed():
     rng = np.random.default_rng(0)
     flat = np.column_stack([rng.uniform(0, 2, 2000), rng.uniform(0, 0.05, 2000), rng.uniform(0, 2, 2000)])

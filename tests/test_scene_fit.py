@@ -67,9 +67,6 @@ def test_scene_fits_every_object_near_its_truth(room_scan, tmp_path, monkeypatch
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limit: from both start scales the table's quick fit of the pair lies "
-                                       "within 1.3 times as far from the chair's points as the chair's own poor "
-                                       "quick fit, and the pair is kept whole (docs/clutter.md, Limits)")
 def test_a_chair_touching_a_table_is_fitted_as_two_objects(tmp_path):
     """A held-out chair 2-3 cm from a table (one cluster): the scene cuts it at the gap, the fits
     judge the whole a pair of objects (scene.json lists it as covered), and each is found with

@@ -105,6 +105,8 @@ class SegmentSettings:
     cut_max: float = 0.02
     """Only a cut of at most this value is a neck between two objects (a cut through one
     object's surface costs more)."""
+    connected_parts: bool = True
+    """Each part of a cut is one connected piece at the clustering radius (:func:`_connected_sides`)."""
     split_margin: float = 0.1
     """A split is kept when a part's class score beats the whole's by this much."""
     cut_max_without_class: float | None = None
@@ -256,14 +258,15 @@ def segment_objects(
     if len(kept) < settings.min_points:
         raise JsrteError(f"no object left after segmentation: {len(walls)} wall(s) removed "
                          f"({removed['walls']} points), {len(kept)} points left", path)
-    labels = _dbscan(points[kept], settings.cluster_eps_factor * _spacing(points[kept]), settings.cluster_min_points)
+    eps = settings.cluster_eps_factor * _spacing(points[kept])
+    labels = _dbscan(points[kept], eps, settings.cluster_min_points)
     removed["dbscan_noise"] = int((labels < 0).sum())
     clusters = [kept[labels == k] for k in range(labels.max(initial=-1) + 1)]
     clusters = _join(clusters, points, heights, shape, settings)
     clusters = _join_supported(clusters, points, heights, up, settings)
     nodes: list[_Node] = []
     for c in clusters:
-        _family_tree(c, points, heights, shape, settings, nodes)
+        _family_tree(c, points, heights, shape, settings, eps, nodes)
     candidates = _family_candidates(nodes, points, heights, up, shape, settings)
     removed["small_clusters"] = int(sum(len(c.index) for c in candidates if c.rejected.startswith("too few")))
     chosen, how = _choose(candidates, points, at, settings.size_weight)
@@ -397,20 +400,23 @@ class _Node:
 
 
 def _family_tree(cluster: _Cluster, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-                 s: SegmentSettings, nodes: list[_Node], parent: int | None = None, depth: int = 0) -> None:
+                 s: SegmentSettings, eps: float, nodes: list[_Node], parent: int | None = None,
+                 depth: int = 0) -> None:
     """Append to ``nodes`` ``cluster``, its members (joined clusters) as its parts, and what
-    each is split into (:func:`_split_tree`), each parent before its parts."""
+    each is split into (:func:`_split_tree`; ``eps``: the clustering radius), each parent
+    before its parts."""
     if not cluster.members:
-        _split_tree(cluster.index, points, heights, shape, s, nodes, parent, depth)
+        _split_tree(cluster.index, points, heights, shape, s, eps, nodes, parent, depth)
         return
     nodes.append(_Node(cluster.index, parent, joined=True))
     parent = len(nodes) - 1
     for member in cluster.members:
-        _family_tree(member, points, heights, shape, s, nodes, parent, depth + 1)
+        _family_tree(member, points, heights, shape, s, eps, nodes, parent, depth + 1)
 
 
 def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-                s: SegmentSettings, nodes: list[_Node], parent: int | None = None, depth: int = 0) -> None:
+                s: SegmentSettings, eps: float, nodes: list[_Node], parent: int | None = None,
+                depth: int = 0) -> None:
     """Append to ``nodes`` ``cluster`` (indices) and its parts, split by the normalized cut of
     its neighbour graph (:func:`normalized_cut`: the narrowest neck between two bodies, where
     touching objects meet), each parent before its parts. A split is kept when one part matches
@@ -419,7 +425,7 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, sh
     left out: it can only be parts); each part is split again, ``split_depth`` deep. A weak neck
     refused for want of class evidence is kept as the ``neck`` of a cluster left whole (not of a
     part)."""
-    cut = _cut(cluster, points, heights, shape, s, depth)
+    cut = _cut(cluster, points, heights, shape, s, eps, depth)
     if cut is None or not cut[2]:
         nodes.append(_Node(cluster, parent, cut[0] if cut is not None and depth == 0 else []))
         return
@@ -428,12 +434,13 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, sh
         nodes.append(_Node(cluster, parent, cut_value=value))
         parent = len(nodes) - 1
     for part in parts:
-        _split_tree(part, points, heights, shape, s, nodes, parent, depth + 1)
+        _split_tree(part, points, heights, shape, s, eps, nodes, parent, depth + 1)
 
 
 def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-         s: SegmentSettings, depth: int) -> tuple[list[np.ndarray], bool, bool, float] | None:
-    """The two parts of ``cluster`` at its weakest neck, whether the whole is too big to be an
+         s: SegmentSettings, eps: float, depth: int) -> tuple[list[np.ndarray], bool, bool, float] | None:
+    """The two parts of ``cluster`` at its weakest neck (each made connected at the clustering
+    radius ``eps``: :func:`_connected_sides`), whether the whole is too big to be an
     object, whether the split is kept (:func:`_split_tree`; not kept: no part matches the
     class better by ``split_margin``) and the cut's value; None when it has no neck both of
     whose parts could be objects."""
@@ -444,15 +451,64 @@ def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: Cl
     if whole is None and not too_big and s.cut_max_without_class is None:
         return None
     side, value = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours)
+    if s.connected_parts:
+        side = _connected_sides(points[cluster], side, eps)
     parts = [cluster[side], cluster[~side]]
     if value > s.cut_max or min(len(p) for p in parts) < s.shred_points:
         return None
-    if not too_big and not all(_object_sized(points[p], heights[p], s) for p in parts):
-        return None  # a table's top cut from its legs: a part no object could be
+    if not too_big and not _could_be_objects(parts, points, heights, s, floating_top=whole is not None):
+        return None
     if whole is None:
         return parts, too_big, too_big or value <= s.cut_max_without_class, value
     best = min((class_score(points[p], heights[p], shape) or 0.0) for p in parts)
     return parts, too_big, too_big or best < whole - s.split_margin, value
+
+
+def _could_be_objects(parts: list[np.ndarray], points: np.ndarray, heights: np.ndarray, s: SegmentSettings,
+                      floating_top: bool) -> bool:
+    """Whether both ``parts`` (two index arrays) of a cut could be objects: neither too flat nor
+    too thin (a table's top is not cut from the legs under it, nor a slab from what it lies
+    on); with ``floating_top`` (a class says which part is its object), one may be a top that
+    floats beside the other: its underside ``min_height_m`` or more above the floor, the other
+    part not under it (less than ``support_share`` of it within ``join_m`` across the up axis),
+    a table whose legs the scan did not see, cut from the chair beside it."""
+    from pykdtree.kdtree import KDTree
+
+    unsized = [k for k, p in enumerate(parts) if not _object_sized(points[p], heights[p], s)]
+    if not unsized:
+        return True
+    if len(unsized) == 2 or not floating_top:
+        return False
+    top, other = parts[unsized[0]], parts[1 - unsized[0]]
+    if float(np.percentile(heights[top], 2)) < s.min_height_m:
+        return False
+    both = np.concatenate([top, other])
+    flat = _flat(points[both], heights[both])  # (n, 2) across the up axis
+    distance = KDTree(np.ascontiguousarray(flat[: len(top)])).query(np.ascontiguousarray(flat[len(top):]), k=1)[0]
+    return float((distance <= s.join_m).mean()) < s.support_share
+
+
+def _connected_sides(points: np.ndarray, side: np.ndarray, eps: float) -> np.ndarray:
+    """``side`` (n,) bool, a two-way cut of ``points`` (n, 3), with every piece of either side
+    that lies apart (farther than ``eps``) from the rest of its side but touches the other side
+    given to the other side: the cut works on a sparse sample of the points, and it can leave
+    a scrap of one object (a bed's corner, a whole box) on the side of another, metres from
+    it. A piece that touches neither (a table's leg seen apart from its top) stays."""
+    from pykdtree.kdtree import KDTree
+
+    moved = side.copy()
+    for mask in (side, ~side):
+        own, other = np.flatnonzero(mask), np.flatnonzero(~mask)
+        if len(own) < 2 or not len(other):
+            continue
+        labels = _dbscan(points[own], eps, 1)
+        stray = labels != np.argmax(np.bincount(labels))
+        if not stray.any():
+            continue
+        gap, _ = KDTree(points[other]).query(points[own[stray]], k=1)
+        touching = np.unique(labels[stray][gap < eps])
+        moved[own[np.isin(labels, touching)]] = not side[own[0]]
+    return moved
 
 
 def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarray, up: np.ndarray,

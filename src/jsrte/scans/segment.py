@@ -472,8 +472,6 @@ def _could_be_objects(parts: list[np.ndarray], points: np.ndarray, heights: np.n
     floats beside the other: its underside ``min_height_m`` or more above the floor, the other
     part not under it (less than ``support_share`` of it within ``join_m`` across the up axis),
     a table whose legs the scan did not see, cut from the chair beside it."""
-    from pykdtree.kdtree import KDTree
-
     unsized = [k for k, p in enumerate(parts) if not _object_sized(points[p], heights[p], s)]
     if not unsized:
         return True
@@ -484,8 +482,16 @@ def _could_be_objects(parts: list[np.ndarray], points: np.ndarray, heights: np.n
         return False
     both = np.concatenate([top, other])
     flat = _flat(points[both], heights[both])  # (n, 2) across the up axis
-    distance = KDTree(np.ascontiguousarray(flat[: len(top)])).query(np.ascontiguousarray(flat[len(top):]), k=1)[0]
-    return float((distance <= s.join_m).mean()) < s.support_share
+    return _share_under(flat[: len(top)], flat[len(top):], s.join_m) < s.support_share
+
+
+def _share_under(top: np.ndarray, other: np.ndarray, reach: float) -> float:
+    """The share of ``other`` (m, 2) within ``reach`` of a point of ``top`` (n, 2): both given
+    across the up axis, so the share of one cluster's points under (or over) another's."""
+    from pykdtree.kdtree import KDTree
+
+    distance = KDTree(np.ascontiguousarray(top)).query(np.ascontiguousarray(other), k=1)[0]
+    return float((distance <= reach).mean())
 
 
 def _connected_sides(points: np.ndarray, side: np.ndarray, eps: float) -> np.ndarray:
@@ -680,8 +686,6 @@ def _join_supported(clusters: list[_Cluster], points: np.ndarray, heights: np.nd
     cluster lying below its underside (within ``join_m``) with ``support_share`` of its points
     under it (within ``join_m`` of one of its points, across the ``up`` axis (3,)); what it
     took in is one object with it (no members)."""
-    from pykdtree.kdtree import KDTree
-
     across = np.linalg.svd(up.reshape(1, 3))[2][1:]  # (2, 3) a basis of the floor's plane
     clusters = sorted(clusters, key=lambda c: -float(np.percentile(heights[c.index], 2)))  # highest first
     alive = [True] * len(clusters)
@@ -689,12 +693,11 @@ def _join_supported(clusters: list[_Cluster], points: np.ndarray, heights: np.nd
         underside = float(np.percentile(heights[top.index], 2))
         if not alive[i] or underside < s.min_height_m:
             continue
-        tree = KDTree(np.ascontiguousarray(points[top.index] @ across.T))
+        top_across = points[top.index] @ across.T
         for j, below in enumerate(clusters):
             if j == i or not alive[j] or float(np.percentile(heights[below.index], 98)) > underside + s.join_m:
                 continue
-            distance = tree.query(np.ascontiguousarray(points[below.index] @ across.T), k=1)[0]
-            if float((distance <= s.join_m).mean()) >= s.support_share:
+            if _share_under(top_across, points[below.index] @ across.T, s.join_m) >= s.support_share:
                 top = _Cluster(np.concatenate([top.index, below.index]))
                 alive[j] = False
         clusters[i] = top

@@ -21,6 +21,7 @@ from jsrte.fit.quality import (
     loss_margin,
     pose_distance,
     quality_columns,
+    surface_coverage,
     surface_points,
 )
 from jsrte.fit.solve import fit_query
@@ -164,3 +165,19 @@ def test_code_distance_is_relative_to_the_training_codes():
     far = latent_distance(off, codes)
     assert far["latent_norm_ratio"] < 1.0
     assert far["latent_mahalanobis_ratio"] > 5.0
+
+
+def test_surface_coverage_is_the_share_of_the_fitted_surface_near_the_points():
+    """A unit sphere placed at scale 0.5: points on its upper half cover half its surface, points
+    on all of it nearly all, points 10 cm off it none (1.5 cm is covered at this scale)."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    placed = Sim3(0.5, axis_angle_matrix(np.array([0.0, 0.0, 1.0]), 0.7), np.array([1.0, 0.0, -2.0]))
+    on = placed.apply(sphere.sample(20_000, seed=1))
+    upper = on[on[:, 1] > 0.0]
+    assert surface_coverage(sphere, placed, on) > 0.97
+    assert surface_coverage(sphere, placed, upper) == pytest.approx(0.5, abs=0.04)
+    outside = placed.t + (on - placed.t) * 1.2  # a sphere 10 cm larger
+    assert surface_coverage(sphere, placed, outside) == 0.0
+    assert surface_coverage(None, placed, on) is None and surface_coverage(sphere, placed, on[:0]) is None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -336,3 +337,38 @@ def test_an_object_outside_its_class_sizes_is_recorded_but_not_found():
     assert fitted("plain", 25.0).status == "ok"  # no sizes recorded: not checked
     empty = fitted("table", 5.0, share=0.1)  # the share is judged first
     assert empty.status == "unexplained" and "lies on 10% of its points" in empty.reason
+
+
+def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found():
+    """A fitted sphere of radius 0.5 m: points on most of it make an object ``ok``; on a fifth of
+    it (under COVERED_MIN) a doubtful one; on a tenth (under COVERED_FOUND) no object, the
+    coverage in its reason."""
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from jsrte.fit.scene import COVERED_FOUND, COVERED_MIN, SceneObject, _mark_coverage, _mark_unexplained
+    from jsrte.geometry.sim3 import Sim3
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    placed = Sim3(0.5, np.eye(3), np.array([0.0, 0.5, 0.0]))
+    on = placed.apply(sphere.sample(20_000, seed=2))
+    height = (on[:, 1] - 0.5) / 0.5  # -1 (bottom) to 1 (top): area is uniform in height on a sphere
+    models = {"table": SimpleNamespace(meta={"name": "mine"})}
+
+    def fitted(top_share: float) -> SceneObject:
+        result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
+        obj = SceneObject(0, 0, on[height > 1.0 - 2.0 * top_share], model="table", result=result)
+        _mark_coverage(obj, seed=0)
+        _mark_unexplained(obj, models)
+        return obj
+
+    seen = fitted(0.8)
+    assert seen.status == "ok" and seen.result.flag == "ok"
+    assert seen.result.quality["surface_coverage"] == pytest.approx(0.8, abs=0.04)
+    part = fitted(0.2)
+    assert COVERED_FOUND < part.result.quality["surface_coverage"] < COVERED_MIN
+    assert part.status == "ok" and part.result.flag == "doubtful"
+    scrap = fitted(0.1)
+    assert scrap.result.quality["surface_coverage"] < COVERED_FOUND
+    assert scrap.status == "unexplained" and re.search(r"cover \d+% of the table", scrap.reason)

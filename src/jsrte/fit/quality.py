@@ -38,6 +38,11 @@ SURFACE_PROBES = 20_000
 """Uniform points in the canonical unit ball, of which those in the band are kept."""
 MAX_POINTS = 20_000
 """At most this many surface points and as many free-space samples are evaluated (a random subset)."""
+COVERAGE_FRACTION = 0.03
+"""A point of the fitted surface is covered when a scan point of the object lies within this
+fraction of the fit's scale (1.5 cm on a chair)."""
+COVERAGE_SAMPLES = 4000
+"""Points drawn on the fitted mesh (by area) to measure its coverage."""
 
 RULE = {"inlier_share_min": 0.3, "loss_margin_min": 0.12, "free_space_violation_max": 0.05,
         "latent_mahalanobis_ratio_max": 0.9}
@@ -191,6 +196,22 @@ def latent_distance(latent: np.ndarray, codes: np.ndarray) -> dict[str, float | 
     return out
 
 
+def surface_coverage(mesh_canonical: Any, transform: Sim3, points: np.ndarray, seed: int = 0) -> float | None:
+    """Share of the fitted surface that the scan saw: of ``COVERAGE_SAMPLES`` points drawn by area
+    on the fitted mesh (``mesh_canonical``, a trimesh in the canonical frame, placed by
+    ``transform``), those within ``COVERAGE_FRACTION`` times its scale of one of ``points`` (n, 3;
+    the object's scan points, scan units). None without a mesh or points. Low on a fit that
+    invents most of its shape: an object seen in part (half a bed, cut from the rest), or a shape
+    laid over a scrap."""
+    from pykdtree.kdtree import KDTree
+
+    if mesh_canonical is None or not len(mesh_canonical.faces) or not len(points):
+        return None
+    drawn = transform.apply(np.asarray(mesh_canonical.sample(COVERAGE_SAMPLES, seed=seed), float))
+    distance, _ = KDTree(np.ascontiguousarray(points, dtype=np.float64)).query(drawn, k=1)
+    return float((distance < COVERAGE_FRACTION * transform.s).mean())
+
+
 def flag_of(quality: dict[str, Any], rule: dict[str, float] = RULE) -> str:
     """"doubtful" when a measure of ``quality`` breaks ``rule`` (or there is no surface to measure),
     else "ok". A measure that is None (no other pose survived, no free-space samples) breaks nothing."""
@@ -221,6 +242,8 @@ MEASURES = {
     "loss_margin_rel": "(best loss at another pose - winner's loss) / winner's loss",
     "latent_norm_ratio": "|z| / median |z| of the training codes",
     "latent_mahalanobis_ratio": "Mahalanobis distance of z / median one of the training codes",
+    "surface_coverage": f"objects of a scene: share of the fitted surface within {COVERAGE_FRACTION} s "
+                        "of the object's points",
 }
 """Each measure of the quality block and its unit."""
 

@@ -364,12 +364,13 @@ def _resumed_rows(config: ScenesConfig, out: Path) -> list[dict]:
 
 def room_figure(out: Path, room: int) -> Path | None:
     """``figure_room_NNN.png``: the room's object points with the true meshes, then with the
-    retrieved ones (one camera); None when the room has no fit."""
+    retrieved ones (one camera; none where no object was found); None when the room was not
+    fitted."""
     from jsrte.scans.io import load_scan, read_scan_info
     from jsrte.viz import render_panels
 
     room_dir, fit_dir = out / "rooms" / f"{room:03d}", out / "fits" / f"{room:03d}"
-    if not (fit_dir / "scene.ply").is_file():
+    if not (fit_dir / "scene.json").is_file():
         return None
     scan = room_dir / "scan.ply"
     points = load_scan(scan).points
@@ -377,7 +378,7 @@ def room_figure(out: Path, room: int) -> Path | None:
     objects = points[labels >= 0] if len(labels) == len(points) else points
     objects = objects[np.random.default_rng(0).choice(len(objects), min(len(objects), 8000), replace=False)]
     truth = _true_scene_mesh(room_dir)
-    fitted = trimesh.load(fit_dir / "scene.ply", process=False)
+    fitted = trimesh.load(fit_dir / "scene.ply", process=False) if (fit_dir / "scene.ply").is_file() else None
     info = read_scan_info(scan)
     path = out / f"figure_room_{room:03d}.png"
     render_panels([("true objects", truth, objects), ("found (jsrte fit --scene)", fitted, objects)], path,

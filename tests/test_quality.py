@@ -23,6 +23,7 @@ from jsrte.fit.quality import (
     quality_columns,
     surface_coverage,
     surface_points,
+    top_coverage,
 )
 from jsrte.fit.solve import fit_query
 from jsrte.geometry.sim3 import Sim3, axis_angle_matrix
@@ -181,3 +182,19 @@ def test_surface_coverage_is_the_share_of_the_fitted_surface_near_the_points():
     outside = placed.t + (on - placed.t) * 1.2  # a sphere 10 cm larger
     assert surface_coverage(sphere, placed, outside) == 0.0
     assert surface_coverage(None, placed, on) is None and surface_coverage(sphere, placed, on[:0]) is None
+
+
+def test_top_coverage_is_the_share_of_the_fitted_top_near_the_points():
+    """The same placed sphere: its top is the cap above 0.8 of its radius (canonical +y, whatever
+    the rotation places it at). Points on its upper half cover all of that cap, points on its
+    lower half none of it, though each covers half the surface."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    placed = Sim3(0.5, axis_angle_matrix(np.array([0.0, 0.0, 1.0]), 0.7), np.array([1.0, 0.0, -2.0]))
+    canonical = sphere.sample(20_000, seed=1)
+    upper, lower = placed.apply(canonical[canonical[:, 1] > 0.0]), placed.apply(canonical[canonical[:, 1] < 0.0])
+    assert top_coverage(sphere, placed, upper) > 0.97
+    assert top_coverage(sphere, placed, lower) == 0.0
+    assert surface_coverage(sphere, placed, lower) == pytest.approx(0.5, abs=0.04)
+    assert top_coverage(None, placed, upper) is None and top_coverage(sphere, placed, upper[:0]) is None

@@ -110,6 +110,7 @@ def test_a_failing_object_is_recorded_and_the_others_go_on(room_scan, monkeypatc
         return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
 
     monkeypatch.setattr(fitting, "fit_with_retry", fit_or_fail)
+    monkeypatch.setattr(scene_module, "ESCAPE_PRESET", "smoke")  # no second fit of a 3-step fit
     scene = scene_module.fit_scene(room_scan, model="chair", preset="smoke")
     assert len(calls) == 2 and len(scene.objects) == 2
     failed, ok = scene.objects
@@ -146,6 +147,7 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
         return result
 
     monkeypatch.setattr(fitting, "fit_recorded", fit_then_move_the_first)
+    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "ESCAPE_PRESET", "smoke")  # not fitted again
     out = tmp_path / "scene"
     code, text, err = run_cli(monkeypatch, capsys, "fit", room_scan, "--scene", "--model", "chair", "--out", out,
                               "--threads", "1", "--no-progress", "--preset", "smoke")
@@ -372,3 +374,74 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
     scrap = fitted(0.1)
     assert scrap.result.quality["surface_coverage"] < COVERED_FOUND
     assert scrap.status == "unexplained" and re.search(r"cover \d+% of the table", scrap.reason)
+
+
+def test_a_table_whose_top_the_scan_did_not_see_is_not_found():
+    """A fitted sphere of radius 0.5 m seen on its lower 80%: most of its surface is covered, its
+    top (the cap in the highest tenth of its height) not. Fitted as a table, it is no object (a
+    table is seen by its top), the top's coverage in its reason; fitted as a chair, it stands."""
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from jsrte.fit.scene import COVERED_MIN, TOP_SEEN_MIN, SceneObject, _mark_coverage, _mark_unexplained
+    from jsrte.geometry.sim3 import Sim3
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    placed = Sim3(0.5, np.eye(3), np.array([0.0, 0.5, 0.0]))
+    on = placed.apply(sphere.sample(20_000, seed=2))
+    below_top = on[on[:, 1] < 0.5 + 0.5 * 0.6]  # the cap above 0.6 of the radius unseen
+    models = {"table": SimpleNamespace(meta={"name": "mine"}), "chair": SimpleNamespace(meta={"name": "mine"})}
+
+    def fitted(model: str) -> SceneObject:
+        result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
+        obj = SceneObject(0, 0, below_top, model=model, result=result)
+        _mark_coverage(obj, seed=0)
+        _mark_unexplained(obj, models)
+        return obj
+
+    table = fitted("table")
+    assert table.result.quality["surface_coverage"] > COVERED_MIN
+    assert table.result.quality["top_coverage"] < TOP_SEEN_MIN["table"]
+    assert table.status == "unexplained" and re.search(r"cover \d+% of the fitted table's top", table.reason)
+    chair = fitted("chair")
+    assert chair.status == "ok" and chair.result.flag == "ok"
+
+
+def test_a_fit_that_explains_almost_none_of_its_points_is_fitted_again(monkeypatch):
+    """A full fit lying on 5% of its points is fitted again with ESCAPE_PRESET (its classes held to
+    their sizes as the scene's preset holds them), and the refit is kept where it lies on more,
+    the first fit's preset, share and loss recorded in it; a refit that lies on fewer is dropped;
+    a fit at EXPLAINED_SHARE or above is not fitted again."""
+    import importlib
+    from types import SimpleNamespace
+
+    from jsrte.fit.scene import ESCAPE_PRESET, EXPLAINED_SHARE, SceneObject, _refit_escaped
+    from jsrte.options import FitOptions
+
+    presets = []
+
+    def refit(model, query, options, *, class_choice=None, progress=False, settings=None):
+        presets.append((options.preset, settings.fit.solver, settings.fit.size_margin))
+        return SimpleNamespace(quality={"inlier_share": refit.share}, info={"preset": options.preset}, loss=0.002)
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit"), "fit_recorded", refit)
+
+    def first(share: float) -> SceneObject:
+        result = SimpleNamespace(quality={"inlier_share": share}, info={"preset": "sized"}, loss=0.009)
+        return SceneObject(0, 0, np.zeros((10, 3)), model="table", result=result)
+
+    options = FitOptions(preset="sized")
+    refit.share = 0.9
+    escaped = first(0.05)
+    _refit_escaped(escaped, None, None, options, False)
+    assert presets == [(ESCAPE_PRESET, "gauss-newton", 1.2)] and escaped.result.quality["inlier_share"] == 0.9
+    assert escaped.result.info["refitted"] == {"preset": ESCAPE_PRESET,
+                                               "first": {"preset": "sized", "inlier_share": 0.05, "loss": 0.009}}
+    refit.share = 0.01
+    worse = first(0.05)
+    _refit_escaped(worse, None, None, options, False)
+    assert worse.result.quality["inlier_share"] == 0.05 and "refitted" not in worse.result.info
+    explained = first(EXPLAINED_SHARE)
+    _refit_escaped(explained, None, None, options, False)
+    assert len(presets) == 2 and explained.result.quality["inlier_share"] == EXPLAINED_SHARE

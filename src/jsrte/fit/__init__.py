@@ -10,6 +10,7 @@ from jsrte.fit.query import SdfQuery
 from jsrte.fit.solve import fit_query, fit_with_retry
 from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.options import FitOptions
+from jsrte.presets import Preset
 from jsrte.result import FitResult
 
 
@@ -73,13 +74,14 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
 
 
 def fit_recorded(model: DeepSdfModel, query: SdfQuery, options: FitOptions, *, class_choice: dict | None = None,
-                 progress: bool = False) -> FitResult:
+                 progress: bool = False, settings: Preset | None = None) -> FitResult:
     """``fit_with_retry`` (``fit_query``, again in float32 where a bfloat16 fit is doubtful and
-    the preset asks) with ``options``, the result carrying what fit.json records of how it was made
-    (options, preset, model and its hash, the query's record, device, up, the class choice if any)."""
+    the preset asks) with ``options`` (its preset's settings, or ``settings`` where given), the
+    result carrying what fit.json records of how it was made (options, preset, model and its
+    hash, the query's record, device, up, the class choice if any)."""
     from jsrte.model.decoder import decoder_device
 
-    settings = options.settings()
+    settings = settings or options.settings()
     result = fit_with_retry(model, query, settings.fit, n_hypotheses=options.hypotheses, seed=options.seed,
                             progress=progress)
     result.query_points = query.surface

@@ -43,6 +43,9 @@ COVERAGE_FRACTION = 0.03
 fraction of the fit's scale (1.5 cm on a chair)."""
 COVERAGE_SAMPLES = 4000
 """Points drawn on the fitted mesh (by area) to measure its coverage."""
+TOP_BAND = 0.1
+"""The fitted shape's top: its surface within this share of its height (along its canonical up,
++y) of its highest point."""
 
 RULE = {"inlier_share_min": 0.3, "loss_margin_min": 0.12, "free_space_violation_max": 0.05,
         "latent_mahalanobis_ratio_max": 0.9}
@@ -203,13 +206,31 @@ def surface_coverage(mesh_canonical: Any, transform: Sim3, points: np.ndarray, s
     the object's scan points, scan units). None without a mesh or points. Low on a fit that
     invents most of its shape: an object seen in part (half a bed, cut from the rest), or a shape
     laid over a scrap."""
-    from pykdtree.kdtree import KDTree
-
     if mesh_canonical is None or not len(mesh_canonical.faces) or not len(points):
         return None
-    drawn = transform.apply(np.asarray(mesh_canonical.sample(COVERAGE_SAMPLES, seed=seed), float))
+    drawn = np.asarray(mesh_canonical.sample(COVERAGE_SAMPLES, seed=seed), float)
+    return _covered_share(transform.apply(drawn), points, transform.s)
+
+
+def top_coverage(mesh_canonical: Any, transform: Sim3, points: np.ndarray, seed: int = 0) -> float | None:
+    """Share of the fitted shape's top that the scan saw: as :func:`surface_coverage`, of the
+    drawn points in its highest ``TOP_BAND`` of height (canonical +y). A table is seen by its
+    top; a table fitted to something else (a piece of a sofa or bed, two objects at once) puts
+    its top where the scan saw little."""
+    if mesh_canonical is None or not len(mesh_canonical.faces) or not len(points):
+        return None
+    drawn = np.asarray(mesh_canonical.sample(COVERAGE_SAMPLES, seed=seed), float)
+    height = drawn[:, 1]
+    top = drawn[height >= height.max() - TOP_BAND * np.ptp(height)]
+    return _covered_share(transform.apply(top), points, transform.s)
+
+
+def _covered_share(drawn: np.ndarray, points: np.ndarray, scale: float) -> float:
+    """Share of ``drawn`` (m, 3) within ``COVERAGE_FRACTION * scale`` of one of ``points`` (n, 3)."""
+    from pykdtree.kdtree import KDTree
+
     distance, _ = KDTree(np.ascontiguousarray(points, dtype=np.float64)).query(drawn, k=1)
-    return float((distance < COVERAGE_FRACTION * transform.s).mean())
+    return float((distance < COVERAGE_FRACTION * scale).mean())
 
 
 def flag_of(quality: dict[str, Any], rule: dict[str, float] = RULE) -> str:
@@ -244,6 +265,8 @@ MEASURES = {
     "latent_mahalanobis_ratio": "Mahalanobis distance of z / median one of the training codes",
     "surface_coverage": f"objects of a scene: share of the fitted surface within {COVERAGE_FRACTION} s "
                         "of the object's points",
+    "top_coverage": f"objects of a scene: the same share of the fitted surface's top (its highest "
+                    f"{TOP_BAND:.0%} of height)",
 }
 """Each measure of the quality block and its unit."""
 

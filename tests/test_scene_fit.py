@@ -445,3 +445,70 @@ def test_a_fit_that_explains_almost_none_of_its_points_is_fitted_again(monkeypat
     explained = first(EXPLAINED_SHARE)
     _refit_escaped(explained, None, None, options, False)
     assert len(presets) == 2 and explained.result.quality["inlier_share"] == EXPLAINED_SHARE
+
+
+def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_hold_it(monkeypatch):
+    """A "table" fitted at a radius of 2.0 m (larger than any table): of the other classes the
+    screen explains well, the chair (0.02) is too small for 2.0 m, so the bed (0.03) is fitted;
+    its fit lies on its points and covers them, so the object is a bed, its class record saying
+    why. Where the bed's fit does not hold (its points cover little of it), the object stays the
+    unexplained table; a class the screen explains badly (0.2) is not tried."""
+    import importlib
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from jsrte.fit.scene import (
+        SceneObject,
+        _fit_class_of_its_size,
+        _mark_coverage,
+        _mark_unexplained,
+        _of_no_size_of_its_class,
+    )
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.model.sizes import ClassSizes
+    from jsrte.options import FitOptions
+
+    def sized(smallest: float, largest: float) -> SimpleNamespace:
+        sizes = ClassSizes(smallest=smallest, median=(smallest + largest) / 2, largest=largest, shapes=200).__dict__
+        return SimpleNamespace(meta={"name": "mine", "sizes_m": sizes})
+
+    models = {"table": sized(0.40, 1.30), "chair": sized(0.38, 0.98), "bed": sized(0.97, 2.50)}
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    placed = Sim3(2.0, np.eye(3), np.array([0.0, 2.0, 0.0]))
+    points = placed.apply(sphere.sample(20_000, seed=2))
+    fitted = []
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False, settings=None):
+        fitted.append(class_choice["chosen"])
+        surface = sphere if fit_recorded.holds else sphere.copy().apply_scale(3.0)
+        return SimpleNamespace(quality={"inlier_share": 0.9}, transform=placed, flag="ok", info={"class": class_choice},
+                               mesh_canonical=surface)
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit"), "fit_recorded", fit_recorded)
+
+    def table(scores: dict) -> SceneObject:
+        result = SimpleNamespace(quality={"inlier_share": 0.9}, transform=placed, flag="ok", mesh_canonical=sphere,
+                                 info={"class": {"chosen": "table", "scores": scores}})
+        obj = SceneObject(0, 0, points, model="table", result=result, choice=SimpleNamespace(query=None),
+                          class_choice={"chosen": "table", "scores": scores})
+        _mark_coverage(obj, seed=0)
+        _mark_unexplained(obj, models)
+        assert _of_no_size_of_its_class(obj, models)
+        return obj
+
+    scores = {"table": 0.01, "chair": 0.02, "bed": 0.03}
+    fit_recorded.holds = True
+    bed = table(scores)
+    _fit_class_of_its_size(bed, models, FitOptions(preset="fast-scales"))
+    assert fitted == ["bed"] and bed.model == "bed" and bed.status == "ok" and bed.reason == ""
+    assert bed.result.info["class"] == {"chosen": "bed", "chosen_by": "size", "scores": scores,
+                                             "first_class": "table", "first_radius_m": 2.0}
+    fit_recorded.holds = False  # the bed's surface three times too large: its points cover little of it
+    stays = table(scores)
+    _fit_class_of_its_size(stays, models, FitOptions(preset="fast-scales"))
+    assert fitted == ["bed", "bed"] and stays.model == "table" and stays.status == "unexplained"
+    assert "no table of its size" in stays.reason
+    untried = table({"table": 0.01, "chair": 0.02, "bed": 0.2})
+    _fit_class_of_its_size(untried, models, FitOptions(preset="fast-scales"))
+    assert len(fitted) == 2 and untried.model == "table" and untried.status == "unexplained"

@@ -14,8 +14,10 @@ place look alike before a fit. Then:
 3. every object left gets the full fit with its class and the preset's settings; where the
    screen leaves two classes close, their full fits decide (``jsrte.fit.classes``); a full fit
    that lies on almost none of its points is fitted again (:data:`ESCAPE_PRESET`);
-4. a fit that explains too little of its points, ends outside its class's sizes, or that its
-   points barely cover (a table: its top) is no object (``unexplained``).
+4. a fit that ends outside its class's sizes is fitted with the class whose sizes hold it
+   (:func:`_fit_class_of_its_size`); a fit that explains too little of its points, ends outside
+   its class's sizes, or that its points barely cover (a table: its top) is no object
+   (``unexplained``).
 
 A candidate whose fit fails (too few points, a degenerate cluster) is recorded as failed with
 the reason and the others go on; candidates the segmentation rejected are listed as skipped with
@@ -291,6 +293,8 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     for obj in objects:
         _mark_coverage(obj, options.seed)
         _mark_unexplained(obj, models)
+    _in_threads(lambda obj: _fit_class_of_its_size(obj, models, options),
+                [o for o in objects if _of_no_size_of_its_class(o, models)], workers)
     skipped = [{"candidate": k, "points": len(c.index), "reason": c.rejected}
                for k, c in enumerate(seg.candidates) if c.rejected]
     floor = segmented.floor
@@ -441,6 +445,47 @@ def _refit_escaped(obj: SceneObject, query: SdfQuery, model: object, options: Fi
         again.info["refitted"] = {"preset": ESCAPE_PRESET, "first": {"preset": first.info.get("preset"),
                                                                     "inlier_share": share, "loss": first.loss}}
         obj.result = again
+
+
+def _of_no_size_of_its_class(obj: SceneObject, models: dict) -> bool:
+    """Whether ``obj`` is unexplained by its size alone: its fit lies on its points, but its
+    radius lies outside its class's sizes widened by :data:`SIZE_MARGIN`."""
+    from jsrte.fit.classes import within_sizes
+
+    r = obj.result
+    return (obj.status == "unexplained" and r is not None and (r.quality.get("inlier_share") or 0.0) >= EXPLAINED_SHARE
+            and within_sizes(models[obj.model], r, SIZE_MARGIN) is False)
+
+
+def _fit_class_of_its_size(obj: SceneObject, models: dict, options: FitOptions) -> None:
+    """An object whose fit ends outside its class's sizes had the wrong class (a bed chosen as a
+    table ends larger than any table): fit it with the other class of lowest screen score, if
+    that score is at most :data:`PART_EXPLAINED` and that class's sizes (widened by
+    :data:`SIZE_MARGIN`) hold the first fit's radius, and keep the new fit where it is found
+    (``ok`` after :func:`_mark_coverage` and :func:`_mark_unexplained`); its class record says
+    ``chosen_by: "size"``, with the first class and radius. Else the object stays as it was."""
+    from jsrte.fit import fit_recorded
+    from jsrte.model.sizes import model_sizes
+
+    radius = float(obj.result.transform.s)
+    scores = (obj.class_choice or {}).get("scores") or {}
+    for score, name in sorted((v, k) for k, v in scores.items() if v is not None and k != obj.model):
+        if score > PART_EXPLAINED:
+            return
+        sizes = model_sizes(models[name].meta)
+        if sizes is None or not sizes.bounds(SIZE_MARGIN)[0] <= radius <= sizes.bounds(SIZE_MARGIN)[1]:
+            continue
+        first = (obj.model, obj.result, obj.status, obj.reason)
+        record = dict(obj.result.info.get("class") or {}, chosen=name, chosen_by="size", first_class=obj.model,
+                      first_radius_m=round(radius, 3))
+        obj.model, obj.status, obj.reason = name, "ok", ""
+        obj.result = fit_recorded(models[name], obj.choice.query, options, class_choice=record)
+        _refit_escaped(obj, obj.choice.query, models[name], options, False)
+        _mark_coverage(obj, options.seed)
+        _mark_unexplained(obj, models)
+        if obj.status != "ok":
+            obj.model, obj.result, obj.status, obj.reason = first
+        return
 
 
 def _mark_unexplained(obj: SceneObject, models: dict) -> None:

@@ -473,7 +473,8 @@ def _fit_class_of_its_size(obj: SceneObject, models: dict, options: FitOptions) 
         if score > PART_EXPLAINED:
             return
         sizes = model_sizes(models[name].meta)
-        if sizes is None or not sizes.bounds(SIZE_MARGIN)[0] <= radius <= sizes.bounds(SIZE_MARGIN)[1]:
+        lo, hi = (None, None) if sizes is None else sizes.bounds(SIZE_MARGIN)
+        if lo is None or not lo <= radius <= hi:
             continue
         first = (obj.model, obj.result, obj.status, obj.reason)
         record = dict(obj.result.info.get("class") or {}, chosen=name, chosen_by="size", first_class=obj.model,

@@ -458,13 +458,7 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
 
     import trimesh
 
-    from jsrte.fit.scene import (
-        SceneObject,
-        _fit_class_of_its_size,
-        _mark_coverage,
-        _mark_unexplained,
-        _of_no_size_of_its_class,
-    )
+    from jsrte.fit.scene import SceneObject, _fit_another_class, _mark_coverage, _mark_unexplained
     from jsrte.geometry.sim3 import Sim3
     from jsrte.model.sizes import ClassSizes
     from jsrte.options import FitOptions
@@ -494,21 +488,54 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
                           class_choice={"chosen": "table", "scores": scores})
         _mark_coverage(obj, seed=0)
         _mark_unexplained(obj, models)
-        assert _of_no_size_of_its_class(obj, models)
+        assert obj.status == "unexplained" and obj.unexplained_by == "size"
         return obj
 
     scores = {"table": 0.01, "chair": 0.02, "bed": 0.03}
     fit_recorded.holds = True
     bed = table(scores)
-    _fit_class_of_its_size(bed, models, FitOptions(preset="fast-scales"))
+    _fit_another_class(bed, models, FitOptions(preset="fast-scales"))
     assert fitted == ["bed"] and bed.model == "bed" and bed.status == "ok" and bed.reason == ""
     assert bed.result.info["class"] == {"chosen": "bed", "chosen_by": "size", "scores": scores,
                                              "first_class": "table", "first_radius_m": 2.0}
     fit_recorded.holds = False  # the bed's surface three times too large: its points cover little of it
     stays = table(scores)
-    _fit_class_of_its_size(stays, models, FitOptions(preset="fast-scales"))
+    _fit_another_class(stays, models, FitOptions(preset="fast-scales"))
     assert fitted == ["bed", "bed"] and stays.model == "table" and stays.status == "unexplained"
     assert "no table of its size" in stays.reason
     untried = table({"table": 0.01, "chair": 0.02, "bed": 0.2})
-    _fit_class_of_its_size(untried, models, FitOptions(preset="fast-scales"))
+    _fit_another_class(untried, models, FitOptions(preset="fast-scales"))
     assert len(fitted) == 2 and untried.model == "table" and untried.status == "unexplained"
+
+
+def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_its_points_is_dropped():
+    """Four spheres of radius 0.8 m fitted as found objects: B, 0.3 m from A, shares most of its
+    volume and lies on fewer of its points, so it is a second fit of A; C touches A (no shared
+    volume) and D stands apart: both stay."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from jsrte.fit.quality import volume_inside
+    from jsrte.fit.scene import SECOND_FIT_SHARE, SceneObject, _drop_second_fits
+    from jsrte.geometry.sim3 import Sim3
+
+    class Ball(torch.nn.Module):
+        def forward(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+            return x.norm(dim=-1) - 0.8
+
+    models = {"sofa": SimpleNamespace(decoder=Ball()), "chair": SimpleNamespace(decoder=Ball())}
+
+    def found(index: int, model: str, x: float, share: float) -> SceneObject:
+        placed = Sim3(1.0, np.eye(3), np.array([x, 0.0, 0.0]))
+        result = SimpleNamespace(quality={"inlier_share": share}, transform=placed, latent=np.zeros(4))
+        return SceneObject(index, index, np.zeros((1, 3)), model=model, result=result)
+
+    b, a = found(0, "chair", 0.3, 0.8), found(1, "sofa", 0.0, 0.9)
+    c, d = found(2, "sofa", 1.6, 0.7), found(3, "sofa", 5.0, 0.6)
+    inside = volume_inside(Ball(), b.result, Ball(), a.result)
+    assert 0.6 < inside < 0.8  # two balls of radius 0.8, 0.3 apart: 70% of each in the other
+    assert volume_inside(Ball(), c.result, Ball(), a.result) == 0.0
+    _drop_second_fits([b, a, c, d], models, seed=0)
+    assert [o.status for o in (a, c, d)] == ["ok", "ok", "ok"] and inside >= SECOND_FIT_SHARE
+    assert b.status == "unexplained" and b.unexplained_by == "second fit" and "object 1 (sofa)" in b.reason

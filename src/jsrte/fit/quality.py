@@ -46,6 +46,8 @@ COVERAGE_SAMPLES = 4000
 TOP_BAND = 0.1
 """The fitted shape's top: its surface within this share of its height (along its canonical up,
 +y) of its highest point."""
+VOLUME_SAMPLES = 20_000
+"""Points drawn in a fitted shape's cube to measure the share of its volume inside another."""
 
 RULE = {"inlier_share_min": 0.3, "loss_margin_min": 0.12, "free_space_violation_max": 0.05,
         "latent_mahalanobis_ratio_max": 0.9}
@@ -223,6 +225,20 @@ def top_coverage(mesh_canonical: Any, transform: Sim3, points: np.ndarray, seed:
     height = drawn[:, 1]
     top = drawn[height >= height.max() - TOP_BAND * np.ptp(height)]
     return _covered_share(transform.apply(top), points, transform.s)
+
+
+def volume_inside(decoder: Decoder, result: FitResult, other_decoder: Decoder, other: FitResult,
+                  seed: int = 0) -> float | None:
+    """Share of the volume of the fitted shape of ``result`` (decoded by ``decoder``) that lies
+    inside the fitted shape of ``other`` (by ``other_decoder``): of ``VOLUME_SAMPLES`` points
+    drawn uniformly in the first shape's canonical cube [-1, 1]³ (the unit sphere holds every
+    normalized shape), placed by its transform, those inside it (SDF < 0), the share inside the
+    other. None when no drawn point is inside the first shape."""
+    drawn = result.transform.apply(np.random.default_rng(seed).uniform(-1.0, 1.0, size=(VOLUME_SAMPLES, 3)))
+    inside = drawn[fitted_sdf(decoder, result.latent, result.transform, drawn) < 0]
+    if not len(inside):
+        return None
+    return float((fitted_sdf(other_decoder, other.latent, other.transform, inside) < 0).mean())
 
 
 def _covered_share(drawn: np.ndarray, points: np.ndarray, scale: float) -> float:

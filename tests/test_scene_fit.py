@@ -344,12 +344,21 @@ def test_an_object_outside_its_class_sizes_is_recorded_but_not_found():
 def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found():
     """A fitted sphere of radius 0.5 m: points on most of it make an object ``ok``; on a fifth of
     it (under COVERED_MIN) a doubtful one; on a tenth (under COVERED_FOUND) no object, the
-    coverage in its reason."""
+    coverage in its reason; on a third (under UNSURE_COVERED_MIN) a doubtful one only where
+    another class came within UNSURE_CLASS_MARGIN of its class."""
     from types import SimpleNamespace
 
     import trimesh
 
-    from jsrte.fit.scene import COVERED_FOUND, COVERED_MIN, SceneObject, _mark_coverage, _mark_unexplained
+    from jsrte.fit.scene import (
+        COVERED_FOUND,
+        COVERED_MIN,
+        UNSURE_CLASS_MARGIN,
+        UNSURE_COVERED_MIN,
+        SceneObject,
+        _mark_coverage,
+        _mark_unexplained,
+    )
     from jsrte.geometry.sim3 import Sim3
 
     sphere = trimesh.creation.icosphere(subdivisions=4)
@@ -358,9 +367,10 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
     height = (on[:, 1] - 0.5) / 0.5  # -1 (bottom) to 1 (top): area is uniform in height on a sphere
     models = {"table": SimpleNamespace(meta={"name": "mine"})}
 
-    def fitted(top_share: float) -> SceneObject:
+    def fitted(top_share: float, class_choice: dict | None = None) -> SceneObject:
         result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
-        obj = SceneObject(0, 0, on[height > 1.0 - 2.0 * top_share], model="table", result=result)
+        obj = SceneObject(0, 0, on[height > 1.0 - 2.0 * top_share], model="table", result=result,
+                          class_choice=class_choice)
         _mark_coverage(obj, seed=0)
         _mark_unexplained(obj, models)
         return obj
@@ -374,6 +384,12 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
     scrap = fitted(0.1)
     assert scrap.result.quality["surface_coverage"] < COVERED_FOUND
     assert scrap.status == "unexplained" and re.search(r"cover \d+% of the table", scrap.reason)
+    between = fitted(0.32)  # covered under UNSURE_COVERED_MIN, above COVERED_MIN
+    assert COVERED_MIN < between.result.quality["surface_coverage"] < UNSURE_COVERED_MIN
+    assert between.status == "ok" and between.result.flag == "ok"  # no class choice: one model
+    for margin, flag in [(UNSURE_CLASS_MARGIN / 2, "doubtful"), (UNSURE_CLASS_MARGIN * 2, "ok")]:
+        chosen = fitted(0.32, class_choice={"chosen": "table", "margin": margin})
+        assert chosen.status == "ok" and chosen.result.flag == flag
 
 
 def test_a_table_whose_top_the_scan_did_not_see_is_not_found():

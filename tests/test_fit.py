@@ -43,6 +43,19 @@ def test_known_axis_recovers_transform_from_theta_grid(lshape, lshape_mesh):
     assert len(result.hypotheses) == 12
 
 
+def test_a_fit_not_assessed_is_the_same_fit_without_a_quality_block(lshape, lshape_mesh):
+    """A quick fit that only ranks (``assess=False``) skips the quality block, nothing else."""
+    truth, up = tilted_truth(theta=2.2)
+    query = make_query(lshape_mesh, truth, up, np.random.default_rng(0))
+    quick = replace(SETTINGS, iterations=30, prune_after=10)
+    assessed = fit_query(lshape, query, quick, seed=0)
+    bare = fit_query(lshape, query, quick, seed=0, assess=False)
+    assert assessed.quality["inlier_share"] > 0.5 and assessed.flag in ("ok", "doubtful")
+    assert bare.quality == {} and bare.flag is None and "quality" not in bare.to_json()
+    np.testing.assert_array_equal(bare.transform.matrix(), assessed.transform.matrix())
+    np.testing.assert_array_equal(bare.latent, assessed.latent)
+
+
 def test_unknown_axis_recovers_transform_from_nearby_start(lshape, lshape_mesh):
     rng = np.random.default_rng(1)
     # the paper's synthetic setting: R = R(psi, rho, theta), axis unknown, start near the truth

@@ -66,6 +66,7 @@ def test_the_fit_picks_the_chair_that_a_box_outranks_by_proportions(tmp_path, ch
     screened = [c["screen"] for c in seg["candidates"] if "screen" in c]
     assert len(screened) >= 2 and chosen["screen"]["score"] == min(s["score"] for s in screened)
     assert chosen["screen"]["residual"] < 0.03  # the chair's points lie on its fitted surface
+    assert all(s.result.flag is None and not s.result.quality for s in choice.screened)  # quick fits only rank
 
 
 def test_model_names():

@@ -223,7 +223,7 @@ def screen(model: DeepSdfModel, name: str, query: SdfQuery, candidate: int | Non
     class rank, 0 for a whole query)."""
     from jsrte.fit.solve import fit_query
 
-    result = fit_query(model, query, settings.fit, seed=seed)
+    result = fit_query(model, query, settings.fit, seed=seed, assess=False)
     parts = screen_terms(model, query, result, settings, np.random.default_rng(seed))
     parts["rank"] = float(rank)
     return Screened(name, candidate, query, result, screen_score(parts, settings), parts)

@@ -80,13 +80,16 @@ def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
 
 def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
               inits: list[Init] | None = None, n_hypotheses: int | None = None,
-              fixed: frozenset[str] | None = None, seed: int = 0, progress: bool = False) -> FitResult:
+              fixed: frozenset[str] | None = None, seed: int = 0, progress: bool = False,
+              assess: bool = True) -> FitResult:
     """Jointly estimate z and (s, R, t) for ``query``; returns the winning hypothesis.
 
     ``inits`` default to :func:`initial_hypotheses` (the θ grid). The winner is chosen by
     ``settings.selection``: F@5% of each surviving hypothesis's decoded surface against the
     query's surface points (the paper), or the final loss. ``fixed`` names the parameters held
     at their start (default: ψ and ρ when the query knows its up axis and ``settings.hold_axis``).
+    ``assess``: fill the quality block and the flag (a quick fit that only ranks candidates and
+    classes needs neither; its ``quality`` stays empty and its ``flag`` None).
     """
     started = time.perf_counter()
     settings = sized(model, settings)
@@ -129,7 +132,8 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     )
     if result.evaluation_parts:
         fitted.info["decoder_evaluations_by_part"] = dict(result.evaluation_parts)
-    _assess(model, observed, fitted, seed)
+    if assess:
+        _assess(model, observed, fitted, seed)
     return fitted
 
 

@@ -187,6 +187,25 @@ def test_objects_fitted_at_once_match_those_fitted_in_turn(room_scan):
         assert np.array_equal(a.result.latent, b.result.latent)
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_work_in_threads_keeps_its_order_and_shows_its_progress(workers, capsys):
+    """Results come back in the items' order, the bar (on stderr) counts every item; no bar
+    without a description."""
+    import time
+
+    from jsrte.fit.scene import _in_threads
+
+    def slow_square(x: int) -> int:
+        time.sleep(0.02 * (3 - x))  # the first item finishes last
+        return x * x
+
+    assert _in_threads(slow_square, [0, 1, 2], workers, bar="quick fits of 3 candidates") == [0, 1, 4]
+    err = capsys.readouterr().err
+    assert "quick fits of 3 candidates" in err and "3/3" in err
+    assert _in_threads(slow_square, [0, 1, 2], workers) == [0, 1, 4]
+    assert capsys.readouterr().err == ""
+
+
 def _untimed(choice: dict | None) -> dict | None:
     """A class choice without the seconds its full fits took (the rest must match run to run)."""
     if choice is None or "final" not in choice:
@@ -450,16 +469,16 @@ def test_a_fit_that_explains_almost_none_of_its_points_is_fitted_again(monkeypat
     options = FitOptions(preset="sized")
     refit.share = 0.9
     escaped = first(0.05)
-    _refit_escaped(escaped, None, None, options, False)
+    _refit_escaped(escaped, None, None, options)
     assert presets == [(ESCAPE_PRESET, "gauss-newton", 1.2)] and escaped.result.quality["inlier_share"] == 0.9
     assert escaped.result.info["refitted"] == {"preset": ESCAPE_PRESET,
                                                "first": {"preset": "sized", "inlier_share": 0.05, "loss": 0.009}}
     refit.share = 0.01
     worse = first(0.05)
-    _refit_escaped(worse, None, None, options, False)
+    _refit_escaped(worse, None, None, options)
     assert worse.result.quality["inlier_share"] == 0.05 and "refitted" not in worse.result.info
     explained = first(EXPLAINED_SHARE)
-    _refit_escaped(explained, None, None, options, False)
+    _refit_escaped(explained, None, None, options)
     assert len(presets) == 2 and explained.result.quality["inlier_share"] == EXPLAINED_SHARE
 
 

@@ -280,7 +280,8 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     options : how to fit (``FitOptions``, default preset :data:`jsrte.presets.SCENE_PRESET`; ``at``
         is refused: a scene fits every object)
     screen : how the class of each object is screened and each split judged
-    progress : show each fit's progress bar (one object at a time only)
+    progress : show a progress bar over the quick fits (candidates screened) and one over the
+        full fits (objects)
     workers : objects screened and fitted at once, each in a thread of its own with one PyTorch
         thread (the fits' PyTorch and NumPy work runs outside Python's interpreter lock); 1: one
         after the other, with PyTorch's threads as they are set
@@ -309,15 +310,17 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     segmented = cands.segmented
     seg = cands.segmentation
     cloud_points = np.asarray(segmented.cloud.points, float)
-    screened = dict(_in_threads(lambda k: _screen_candidate(k, cands, models, options, screen),
-                                _to_screen(cands, several=len(models) > 1), workers))
+    to_screen = _to_screen(cands, several=len(models) > 1)
+    screened = dict(_in_threads(lambda k: _screen_candidate(k, cands, models, options, screen), to_screen, workers,
+                                bar=f"quick fits of {len(to_screen)} candidates by {len(models)} model(s)"
+                                if progress and to_screen else None, unit="candidate"))
     covered = judge_splits(seg.candidates, screened, models, screen, options.seed)
     found = [k for k in cands.possible() if k not in covered]
     objects = [SceneObject(number, k, cloud_points[segmented.index[seg.candidates[k].index]],
                            choice=screened.get(k))
                for number, k in enumerate(found)]
-    _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen, progress and workers == 1),
-                objects, workers)
+    _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), objects, workers,
+                bar=f"fitting {len(objects)} objects" if progress and objects else None, unit="object")
     for obj in objects:
         _mark_coverage(obj, options.seed)
         _mark_unexplained(obj, models)
@@ -401,25 +404,36 @@ def _covered_json(candidates: list, covered: set[int]) -> list[dict[str, Any]]:
     return out
 
 
-def _in_threads(function: Callable[[Any], Any], items: list, workers: int) -> list:
+def _in_threads(function: Callable[[Any], Any], items: list, workers: int, bar: str | None = None,
+                unit: str = "it") -> list:
     """``function`` of every one of ``items``, in ``workers`` threads with one PyTorch thread each
-    (one: in turn, PyTorch's threads as they are); the results in order."""
+    (one: in turn, PyTorch's threads as they are); the results in order. ``bar``: a progress
+    bar's description (on stderr, counting ``unit``, advanced as each result is taken in order;
+    None: no bar)."""
+    from tqdm import tqdm
+
     workers = max(1, min(workers, len(items)))
-    if workers == 1:
-        return [function(item) for item in items]
-    import torch
+    with tqdm(total=len(items), desc=bar, unit=unit, disable=bar is None) as progress:
+        if workers == 1:
+            return [_advanced(progress, function(item)) for item in items]
+        import torch
 
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        with ThreadPoolExecutor(workers) as pool:
-            return list(pool.map(function, items))
-    finally:
-        torch.set_num_threads(before)
+        before = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with ThreadPoolExecutor(workers) as pool:
+                return [_advanced(progress, result) for result in pool.map(function, items)]
+        finally:
+            torch.set_num_threads(before)
 
 
-def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptions, screen: ScreenSettings,
-                progress: bool) -> None:
+def _advanced(progress: Any, result: Any) -> Any:
+    """``result``, the bar ``progress`` advanced by one."""
+    progress.update(1)
+    return result
+
+
+def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptions, screen: ScreenSettings) -> None:
     """Fit ``obj`` with its class (fills ``obj.model``, ``class_choice``, ``result``); where the
     screen leaves classes close, their full fits decide (``jsrte.fit.classes.fit_contenders``); a
     fit that explains almost none of its points is fitted again (:func:`_refit_escaped`). A fit
@@ -435,26 +449,25 @@ def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptio
         if len(models) == 1:
             (obj.model, model), = models.items()
             query = _query(cands, obj.candidate, options) if choice is None else choice.query
-            obj.result = fit_recorded(model, query, options, progress=progress)
+            obj.result = fit_recorded(model, query, options)
         else:
             query = choice.query
             obj.class_choice = choice.class_json()
             classes = contending(choice.classes, screen)
             if len(classes) == 1:
                 obj.model = classes[0]
-                obj.result = fit_recorded(models[obj.model], query, options, class_choice=obj.class_choice,
-                                          progress=progress)
+                obj.result = fit_recorded(models[obj.model], query, options, class_choice=obj.class_choice)
             else:
                 obj.result = fit_contenders({name: query for name in classes}, models, options, obj.class_choice,
-                                            settings=screen, progress=progress)
+                                            settings=screen)
                 obj.class_choice = obj.result.info["class"]
                 obj.model = obj.class_choice["chosen"]
-        _refit_escaped(obj, query, models[obj.model], options, progress)
+        _refit_escaped(obj, query, models[obj.model], options)
     except JsrteError as exc:
         obj.status, obj.reason, obj.result = "failed", str(exc), None
 
 
-def _refit_escaped(obj: SceneObject, query: SdfQuery, model: object, options: FitOptions, progress: bool) -> None:
+def _refit_escaped(obj: SceneObject, query: SdfQuery, model: object, options: FitOptions) -> None:
     """Where ``obj``'s fit lies on fewer than :data:`EXPLAINED_SHARE` of its points, fit it again
     with :data:`ESCAPE_PRESET` (each class held to its sizes as ``options``' preset holds it) and
     keep the fit that lies on more (the first's preset, inlier share and loss recorded in the
@@ -468,8 +481,7 @@ def _refit_escaped(obj: SceneObject, query: SdfQuery, model: object, options: Fi
     escape = options.changed(preset=ESCAPE_PRESET)
     settings = escape.settings()
     settings = replace(settings, fit=replace(settings.fit, size_margin=options.settings().fit.size_margin))
-    again = fit_recorded(model, query, escape, class_choice=first.info.get("class"), progress=progress,
-                         settings=settings)
+    again = fit_recorded(model, query, escape, class_choice=first.info.get("class"), settings=settings)
     if (again.quality.get("inlier_share") or 0.0) > (share or 0.0):
         again.info["refitted"] = {"preset": ESCAPE_PRESET, "first": {"preset": first.info.get("preset"),
                                                                     "inlier_share": share, "loss": first.loss}}
@@ -509,7 +521,7 @@ def _fit_another_class(obj: SceneObject, models: dict, options: FitOptions) -> N
                       first_class=obj.model, first_radius_m=round(radius, 3))
         obj.model, obj.status, obj.reason, obj.unexplained_by = name, "ok", "", ""
         obj.result = fit_recorded(models[name], obj.choice.query, options, class_choice=record)
-        _refit_escaped(obj, obj.choice.query, models[name], options, False)
+        _refit_escaped(obj, obj.choice.query, models[name], options)
         _mark_coverage(obj, options.seed)
         _mark_unexplained(obj, models)
         if obj.status != "ok":

@@ -11,6 +11,7 @@ import pytest
 
 from cli_runner import run_cli
 from jsrte.errors import JsrteError
+from jsrte.fit.scene import PHASES
 from jsrte.scans.scene import SceneSettings, scan_room, write_room
 from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 from test_clutter import table
@@ -65,6 +66,10 @@ def test_scene_fits_every_object_near_its_truth(room_scan, tmp_path, monkeypatch
     colours = np.unique(np.asarray(mesh.visual.vertex_colors)[:, :3], axis=0)
     assert len(colours) == 2 and (out / "overlay.png").is_file()
     assert text.count("\nobject ") + text.startswith("object ") == 2 and "2 object(s) fitted" in text
+    timing = record["timing_s"]  # where the time went: every phase, within the whole
+    assert list(timing) == [*PHASES, "total"] and min(timing.values()) >= 0.0
+    assert timing["full fits"] > 0.0 and sum(timing[p] for p in PHASES) <= timing["total"] + 0.05
+    assert f"full fits {timing['full fits']:.1f} s" in text
 
 
 @pytest.mark.slow

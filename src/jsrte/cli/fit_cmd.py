@@ -90,7 +90,7 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
                threads: int) -> None:
     """``jsrte fit --scene``: every object of the scan, one line each, then the files."""
     from jsrte.atomic import output_dir
-    from jsrte.fit.scene import fit_scene
+    from jsrte.fit.scene import PHASES, fit_scene
     from jsrte.fit.scene_outputs import SCENE_NAME, write_scene_outputs
 
     if options.at is not None:
@@ -110,6 +110,9 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
                f"{len(scene.objects) - len(scene.fitted)} failed, "
                f"{len(scene.skipped)} candidate(s) skipped, {len(scene.covered)} set aside; "
                f"wrote {out}/scene.json, scene.ply, overlay.png, objects/NN/")
+    timing = scene.timing
+    phases = ", ".join(f"{phase} {timing[phase]:.1f} s" for phase in PHASES if phase in timing)
+    typer.echo(f"fitted in {timing.get('total', 0.0):.1f} s ({phases})")
 
 
 def _scene_line(obj) -> str:  # noqa: ANN001

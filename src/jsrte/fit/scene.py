@@ -30,8 +30,10 @@ writes the files.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -122,6 +124,7 @@ class SceneResult:
     models : the names of the models the classes were chosen among
     covered : the candidates judged no object of their own (pieces of a whole, or wholes of
         several objects): position, points, reason
+    timing : wall seconds of each phase (:data:`PHASES`) and in all
     """
 
     objects: list[SceneObject]
@@ -133,6 +136,7 @@ class SceneResult:
     options: dict[str, Any] = field(default_factory=dict)
     models: list[str] = field(default_factory=list)
     covered: list[dict[str, Any]] = field(default_factory=list)
+    timing: dict[str, float] = field(default_factory=dict)
 
     @property
     def fitted(self) -> list[SceneObject]:
@@ -153,7 +157,8 @@ class SceneResult:
                 "walls": seg.get("walls", []), "removed": seg.get("removed", {}),
                 "objects": [o.to_json() for o in self.objects], "skipped": self.skipped, "covered": self.covered,
                 "counts": {"fitted": len(self.found), "unexplained": len(self.fitted) - len(self.found),
-                           "failed": len(self.objects) - len(self.fitted), "skipped": len(self.skipped)}}
+                           "failed": len(self.objects) - len(self.fitted), "skipped": len(self.skipped)},
+                "timing_s": self.timing}
 
 
 SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008)
@@ -298,7 +303,9 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         options = options.changed(float32_retry=SCENE_FLOAT32_RETRY)
     if options.at is not None:
         raise JsrteError("--scene fits every object; --at picks one (give one or the other)", path)
-    with stage("load"):
+    timing: dict[str, float] = {}
+    started = time.perf_counter()
+    with stage("load"), _timed(timing, "segmentation"):
         models = load_models(model, options.device)
         settings = options.settings()
         shape = class_shape(next(iter(models.values()))) if len(models) == 1 else None
@@ -311,29 +318,50 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     seg = cands.segmentation
     cloud_points = np.asarray(segmented.cloud.points, float)
     to_screen = _to_screen(cands, several=len(models) > 1)
-    screened = dict(_in_threads(lambda k: _screen_candidate(k, cands, models, options, screen), to_screen, workers,
-                                bar=f"quick fits of {len(to_screen)} candidates by {len(models)} model(s)"
-                                if progress and to_screen else None, unit="candidate"))
-    covered = judge_splits(seg.candidates, screened, models, screen, options.seed)
+    with _timed(timing, "quick fits"):
+        screened = dict(_in_threads(lambda k: _screen_candidate(k, cands, models, options, screen), to_screen,
+                                    workers, bar=f"quick fits of {len(to_screen)} candidates by {len(models)} "
+                                    "model(s)" if progress and to_screen else None, unit="candidate"))
+        covered = judge_splits(seg.candidates, screened, models, screen, options.seed)
     found = [k for k in cands.possible() if k not in covered]
     objects = [SceneObject(number, k, cloud_points[segmented.index[seg.candidates[k].index]],
                            choice=screened.get(k))
                for number, k in enumerate(found)]
-    _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), objects, workers,
-                bar=f"fitting {len(objects)} objects" if progress and objects else None, unit="object")
-    for obj in objects:
-        _mark_coverage(obj, options.seed)
-        _mark_unexplained(obj, models)
-    _in_threads(lambda obj: _fit_another_class(obj, models, options),
-                [o for o in objects if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
-    _drop_second_fits(objects, models, options.seed)
+    with _timed(timing, "full fits"):
+        _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), objects, workers,
+                    bar=f"fitting {len(objects)} objects" if progress and objects else None, unit="object")
+    with _timed(timing, "checks"):
+        for obj in objects:
+            _mark_coverage(obj, options.seed)
+            _mark_unexplained(obj, models)
+        _in_threads(lambda obj: _fit_another_class(obj, models, options),
+                    [o for o in objects if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
+        _drop_second_fits(objects, models, options.seed)
+    timing["total"] = round(time.perf_counter() - started, 2)
     skipped = [{"candidate": k, "points": len(c.index), "reason": c.rejected}
                for k, c in enumerate(seg.candidates) if c.rejected]
     floor = segmented.floor
     return SceneResult(objects, skipped, seg.to_json(), cloud_points, up=np.asarray(segmented.up, float),
                        floor_offset=None if floor is None else float(floor.offset),
                        options=options.record(), models=list(models),
-                       covered=_covered_json(seg.candidates, covered))
+                       covered=_covered_json(seg.candidates, covered), timing=timing)
+
+
+PHASES = ("segmentation", "quick fits", "full fits", "checks")
+"""The phases of :func:`fit_scene` whose wall seconds ``SceneResult.timing`` (scene.json's
+``timing_s``) records: models loaded and the scan segmented; every candidate fitted quickly by
+every model and the splits judged; the full fits (contending classes and refits included); the
+coverage, size and second-fit checks with the other-class fits they call for."""
+
+
+@contextmanager
+def _timed(timing: dict[str, float], phase: str) -> Iterator[None]:
+    """Add the block's wall seconds to ``timing[phase]``."""
+    started = time.perf_counter()
+    try:
+        yield
+    finally:
+        timing[phase] = round(timing.get(phase, 0.0) + time.perf_counter() - started, 2)
 
 
 def _to_screen(cands: object, several: bool) -> list[int]:

@@ -166,8 +166,9 @@ def run_room(room: int, config: ScenesConfig, out: Path) -> list[dict]:
         if row["outcome"] == HIT:
             row.update(_truth_columns(obj.result, drawn.objects[row["true_index"]], rng))
     for row in rows:
-        row.update(room=room, seed=config.seed, scene_seconds=round(seconds, 2), objects_found=len(found_objects),
-                   scene_error=failure)
+        row.update(room=room, seed=config.seed, scene_seconds=round(seconds, 2),
+                   quick_fit_seconds=None if scene is None else scene.timing.get("quick fits"),
+                   objects_found=len(found_objects), scene_error=failure)
     return [_ordered(r) for r in rows]
 
 
@@ -199,7 +200,7 @@ def _truth_columns(result: object, true: object, rng: np.random.Generator) -> di
 COLUMNS = ("room", "seed", "outcome", "true_index", "true_class", "found_index", "found_class", "flag",
            "distance_rel", "fscore", "precision", "recall", "rotation_error_deg", "scale_error_rel",
            "translation_error", "class_margin", "points", "scale_m", "fit_seconds", "scene_seconds",
-           "objects_found", "scene_error")
+           "quick_fit_seconds", "objects_found", "scene_error")
 
 
 def _ordered(row: dict) -> dict:
@@ -280,12 +281,16 @@ def _room_line(room: int, rows: list[dict]) -> str:
 
 def summarize(rows: list[dict]) -> dict:
     """Detection, fit quality and time over every room of ``rows``: seconds per scene (mean over
-    rooms) and per found object (all rooms' seconds over all objects found)."""
+    rooms), of them in the quick fits (where every room recorded them), and per found object
+    (all rooms' seconds over all objects found)."""
     rooms = {r["room"]: r for r in rows}
     seconds = [float(r["scene_seconds"]) for r in rooms.values()]
+    quick = [r.get("quick_fit_seconds") for r in rooms.values()]
     found = sum(int(r["objects_found"]) for r in rooms.values())
     return {"rooms": len(rooms), **detection(rows), **fit_quality(rows),
             "seconds_per_scene": round(float(np.mean(seconds)), 1) if seconds else None,
+            "quick_fit_seconds_per_scene": round(float(np.mean([float(q) for q in quick])), 1)
+            if quick and all(q not in (None, "") for q in quick) else None,
             "seconds_per_object": round(sum(seconds) / found, 1) if found else None}
 
 
@@ -303,7 +308,9 @@ SUMMARY_LABELS = (
     ("flag precision (doubtful fits with F < 0.7)", "flag_precision"),
     ("flag recall (fits with F < 0.7 flagged)", "flag_recall"),
     ("fits with F ≥ 0.85 flagged doubtful", "good_fits_flagged"),
-    ("seconds per scene (wall)", "seconds_per_scene"), ("seconds per found object (wall)", "seconds_per_object"))
+    ("seconds per scene (wall)", "seconds_per_scene"),
+    ("of which quick fits of the candidates (wall)", "quick_fit_seconds_per_scene"),
+    ("seconds per found object (wall)", "seconds_per_object"))
 
 
 def summary_markdown(summary: dict, table: dict, config: ScenesConfig) -> str:
@@ -332,8 +339,8 @@ def summary_markdown(summary: dict, table: dict, config: ScenesConfig) -> str:
 
 
 def _write_summary(rows: list[dict], summary: dict, table: dict, config: ScenesConfig, out: Path) -> list[Path]:
-    rooms = list({r["room"]: {k: r[k] for k in ("room", "seed", "scene_seconds", "objects_found", "scene_error")}
-                  for r in rows}.values())
+    keys = ("room", "seed", "scene_seconds", "quick_fit_seconds", "objects_found", "scene_error")
+    rooms = list({r["room"]: {k: r.get(k) for k in keys} for r in rows}.values())
     write_csv_atomic(out / ROOMS_NAME, rooms)
     write_csv_atomic(out / SUMMARY_CSV, [summary])
     write_bytes_atomic(out / SUMMARY_MD, summary_markdown(summary, table, config).encode())

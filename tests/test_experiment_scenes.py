@@ -10,6 +10,9 @@ import numpy as np
 import pytest
 
 from jsrte.experiments.scene_scoring import (
+    BOX_FOUND,
+    BOX_UNFOUND,
+    FALSE_BOX,
     FALSE_POSITIVE,
     HIT,
     MISS,
@@ -71,6 +74,27 @@ def test_detection_tallies_and_confusion():
     assert table["chair"]["chair"] == 1 and table["table"]["chair"] == 1 and table["sofa"]["missed"] == 1
     assert table["box"]["bed"] == 1 and sum(table["bed"].values()) == 0
     assert sum(sum(row.values()) for row in table.values()) == 4
+
+
+def test_reported_boxes_are_scored_apart_from_furniture():
+    """A reported box on a true box is a box found; on furniture it leaves that furniture missed;
+    on nothing it is a false box; none is a hit or a false positive."""
+    true = true_room() + [TrueObject(4, "box", np.array([0.0, 9, 0]), 0.5)]
+    found = [FoundObject(0, "chair", np.array([0.1, 0, 0]), "ok"),
+             FoundObject(1, "box", np.array([0.0, 5.05, 0])),  # on the box
+             FoundObject(2, "box", np.array([5.2, 0, 0])),     # on the table
+             FoundObject(3, "box", np.array([20.0, 0, 0]))]    # on nothing
+    rows = object_rows(true, found)
+    by_true = {r["true_index"]: r for r in rows if r["true_index"] is not None}
+    assert by_true[3]["outcome"] == BOX_FOUND and by_true[4]["outcome"] == BOX_UNFOUND
+    assert by_true[1]["outcome"] == MISS and by_true[1]["found_class"] == "box"
+    assert [r["outcome"] for r in rows if r["true_index"] is None] == [FALSE_BOX]
+    d = detection(rows)
+    assert (d["hits"], d["missed"], d["false_positives"], d["found"]) == (1, 2, 0, 1)
+    assert (d["boxes"], d["boxes_found"], d["found_on_boxes"], d["false_boxes"], d["furniture_as_boxes"]) == \
+        (2, 1, 0, 1, 1)
+    assert d["precision"] == 1.0 and d["recall"] == pytest.approx(1 / 3, abs=1e-4)
+    assert confusion(rows)["table"]["box"] == 1
 
 
 def test_fit_quality_and_the_flag_as_a_detector_of_bad_fits():

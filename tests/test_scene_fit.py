@@ -162,12 +162,14 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
     assert moved["status"] == "unexplained" and moved["quality"]["inlier_share"] < EXPLAINED_SHARE
     assert "no model explains it" in moved["reason"] and moved["flag"] == "doubtful"
     assert kept["status"] == "ok" and kept["quality"]["inlier_share"] >= EXPLAINED_SHARE
-    assert record["counts"] == {"fitted": 1, "unexplained": 1, "failed": 0, "skipped": record["counts"]["skipped"]}
+    assert record["counts"] == {"fitted": 1, "boxes": 0, "unexplained": 1, "failed": 0,
+                                "skipped": record["counts"]["skipped"]}
     assert (out / moved["folder"] / "fit.json").is_file()  # its files are kept for a look
     mesh = trimesh.load(out / "scene.ply", process=False)
     kept_mesh = trimesh.load(out / kept["folder"] / "shape.ply", process=False)
     assert len(mesh.vertices) == len(kept_mesh.vertices)
-    assert "object 00: unexplained (no model explains it" in text and "1 object(s) fitted, 1 unexplained" in text
+    assert "object 00: unexplained (no model explains it" in text
+    assert "1 object(s) fitted, 0 box(es), 1 unexplained" in text
 
 
 @pytest.mark.slow
@@ -304,6 +306,22 @@ def test_a_scene_asks_a_whole_about_every_part_some_class_explains(monkeypatch):
     scores = {0: 0.02, 1: 0.02, 2: 0.02, 3: 2 * PART_EXPLAINED, 4: 2 * PART_EXPLAINED}
     covered = judge_splits(tree, _screens(scores), {"m": None}, SCENE_SCREEN, 0)
     assert covered == {1, 2, 3, 4} and sorted(set(asked)) == [(0, 1), (0, 2), (1, 3)]
+
+
+def test_a_whole_holding_a_box_is_never_one_object(monkeypatch):
+    """A whole that its fit explains as well as its parts is one object, unless one of its parts
+    (or a part's part) is a box: then its parts stand."""
+    from importlib import import_module
+
+    from jsrte.fit.scene import SCENE_SCREEN, judge_splits
+
+    monkeypatch.setattr(import_module("jsrte.fit.screen"), "explained_ratio", lambda *args, **kw: 1.0)
+    tree = [_Candidate(1000, [1, 2]), _Candidate(600, [3, 4], 0), _Candidate(400, parent=0),
+            _Candidate(400, parent=1), _Candidate(200, parent=1)]
+    scores = _screens({0: 0.01, 1: 0.01, 2: 0.02, 3: 0.02, 4: 0.02})
+    assert judge_splits(tree, scores, {"m": None}, SCENE_SCREEN, 0) == {1, 2, 3, 4}
+    assert judge_splits(tree, scores, {"m": None}, SCENE_SCREEN, 0, boxes={2}) == {0, 3, 4}
+    assert judge_splits(tree, scores, {"m": None}, SCENE_SCREEN, 0, boxes={4}) == {0, 1}
 
 
 @pytest.mark.slow

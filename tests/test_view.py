@@ -83,6 +83,32 @@ def test_batch_and_scene_layouts(tmp_path):
     assert found.kind == "scene" and [e.name for e in found.entries] == ["00", "01"]
 
 
+def test_a_scenes_boxes_are_shown_as_their_cuboids(tmp_path):
+    """A scene's boxes (scene.json objects of status box) are items beside its fits: the cuboid
+    as the mesh, the scene's scan and floor; a box whose cuboid is unreadable is named."""
+    scan = make_scan(tmp_path / "scans", "chair")
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    turn = trimesh.transformations.rotation_matrix(0.4, [0, 1, 0])[:3, :3]
+    box = {"index": 1, "status": "box", "class": "box", "points": 900, "box_evidence": {"seen_through": 0.02},
+           "cuboid": {"centre": [2.0, 0.25, 1.0], "axes": turn.T.tolist(), "extents": [0.6, 0.4, 0.5]}}
+    broken = {"index": 2, "status": "box", "cuboid": {"centre": [0, 0, 0], "axes": turn.T.tolist(),
+                                                      "extents": [0.6, -1, 0.5]}}
+    record = {"input": str(scan), "floor": {"up": [0, 1, 0], "offset": 0.0},
+              "objects": [{"index": 0, "status": "unexplained"}, box, broken]}
+    (scene / "scene.json").write_text(json.dumps(record))
+    found = find_fits(scene)  # no fitted object: the boxes alone make it a scene
+    assert found.kind == "scene" and [e.name for e in found.entries] == ["01", "02"]
+    item = load_item(found.entries[0])
+    assert item.fit_read and item.problems == [] and item.scan is not None
+    assert item.mesh.volume == pytest.approx(0.6 * 0.4 * 0.5)
+    assert np.allclose(item.mesh.bounds.mean(axis=0), [2.0, 0.25, 1.0])
+    assert np.allclose(item.floor.normal, [0, 1, 0]) and item.numbers["class"] == "box"
+    assert item.numbers["size (m)"] == "0.60 × 0.40 × 0.50"
+    bad = load_item(found.entries[1])
+    assert not bad.fit_read and "box 02 is not readable" in bad.problems[0]
+
+
 def test_folder_without_a_fit_is_a_one_line_error(tmp_path):
     (tmp_path / "empty" / "sub").mkdir(parents=True)
     with pytest.raises(JsrteError, match="empty: holds no fit"):

@@ -106,8 +106,9 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
         typer.echo(f"skipped candidate {skip['candidate']}: {skip['points']} points, {skip['reason']}")
     for cover in scene.covered:
         typer.echo(f"set aside candidate {cover['candidate']}: {cover['points']} points, {cover['reason']}")
-    typer.echo(f"{len(scene.found)} object(s) fitted, {len(scene.fitted) - len(scene.found)} unexplained, "
-               f"{len(scene.objects) - len(scene.fitted)} failed, "
+    failed = len(scene.objects) - len(scene.fitted) - len(scene.boxes)
+    typer.echo(f"{len(scene.found)} object(s) fitted, {len(scene.boxes)} box(es), "
+               f"{len(scene.fitted) - len(scene.found)} unexplained, {failed} failed, "
                f"{len(scene.skipped)} candidate(s) skipped, {len(scene.covered)} set aside; "
                f"wrote {out}/scene.json, scene.ply, overlay.png, objects/NN/")
     timing = scene.timing
@@ -116,9 +117,13 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
 
 
 def _scene_line(obj) -> str:  # noqa: ANN001
-    """One line for an object of a scene: class, flag, scale, centre."""
+    """One line for an object of a scene: class, flag, scale, centre (a box: its size)."""
     import numpy as np
 
+    if obj.box is not None:
+        size = " x ".join(f"{v:.2f}" for v in obj.box.cuboid.extents)
+        return (f"object {obj.index:02d}: box, {size} (height last), at "
+                f"{np.round(obj.box.cuboid.centre, 2).tolist()}, {len(obj.points)} points")
     if obj.status != "ok":
         return f"object {obj.index:02d}: {obj.status} ({obj.reason}); {len(obj.points)} points"
     margin = (obj.class_choice or {}).get("margin")

@@ -8,7 +8,9 @@ assignment).
 
 Only furniture (the shipped classes, ``FURNITURE``) is to be found. A box is clutter no model
 covers: a found object on a box is neither a hit nor a false positive, it is counted apart (and
-should be flagged doubtful); a box nobody found is no miss.
+should be flagged doubtful); a box nobody found is no miss. A scene also reports boxes (class
+``BOX``, not fitted): one on a true box is a box found, one on furniture leaves that furniture
+missed, one on nothing is a false box; none counts as a hit or a false positive.
 """
 
 from __future__ import annotations
@@ -30,9 +32,15 @@ FURNITURE = CATEGORIES
 MISSED = "missed"
 """The confusion matrix's column of true objects nobody found."""
 
+BOX = "box"
+"""The class of a box, true or reported by a scene."""
+
 HIT, MISS, FALSE_POSITIVE, ON_BOX, BOX_UNFOUND = "hit", "missed", "false positive", "on box", "box not found"
-"""Outcomes of an object row: a true furniture object found (hit) or not (missed); a found object
-matching nothing (false positive) or a box (on box); a box no object matched."""
+BOX_FOUND, FALSE_BOX = "box found", "false box"
+"""Outcomes of an object row: a true furniture object found (hit) or not (missed, also where a
+reported box stands on it); a found object matching nothing (false positive) or a box (on box);
+a box no object matched, or one a reported box matched (box found); a reported box matching
+nothing (false box)."""
 
 
 @dataclass(frozen=True)
@@ -79,7 +87,8 @@ def object_rows(true: list[TrueObject], found: list[FoundObject],
     """One row per true object (with the found object matched to it, if any), then one per found
     object that matched none: ``true_index``, ``true_class``, ``found_index``, ``found_class``,
     ``flag``, ``distance_rel`` (found centre to true centre over the true radius) and ``outcome``
-    (``HIT``, ``MISS``, ``ON_BOX``, ``BOX_UNFOUND`` or ``FALSE_POSITIVE``)."""
+    (``HIT``, ``MISS``, ``ON_BOX``, ``BOX_UNFOUND``, ``BOX_FOUND``, ``FALSE_POSITIVE`` or
+    ``FALSE_BOX``). Found objects of class :data:`BOX` are the boxes a scene reported."""
     matches = match_objects(true, found, fraction)
     by_true = {t: f for f, t in matches.items()}
     rows = []
@@ -91,28 +100,41 @@ def object_rows(true: list[TrueObject], found: list[FoundObject],
             f = found[by_true[k]]
             row.update(found_index=f.index, found_class=f.kind, flag=f.flag,
                        distance_rel=float(np.linalg.norm(np.asarray(f.centre) - t.centre) / t.radius),
-                       outcome=HIT if furniture else ON_BOX)
+                       outcome=_matched_outcome(furniture, f.kind == BOX))
         else:
             row["outcome"] = MISS if furniture else BOX_UNFOUND
         rows.append(row)
     for k, f in enumerate(found):
         if k not in matches:
             rows.append({"true_index": None, "true_class": None, "found_index": f.index, "found_class": f.kind,
-                         "flag": f.flag, "distance_rel": None, "outcome": FALSE_POSITIVE})
+                         "flag": f.flag, "distance_rel": None,
+                         "outcome": FALSE_BOX if f.kind == BOX else FALSE_POSITIVE})
     return rows
+
+
+def _matched_outcome(furniture: bool, box_found: bool) -> str:
+    """The outcome of a true object (furniture or a box) matched by a found one (a fitted object
+    or a reported box)."""
+    if furniture:
+        return MISS if box_found else HIT
+    return BOX_FOUND if box_found else ON_BOX
 
 
 def detection(rows: list[dict]) -> dict[str, float | int | None]:
     """Detection tallies of object rows (any number of rooms): recall = hits / true furniture,
     precision = hits / (hits + false positives) (found objects on boxes left out of both), class
-    accuracy over the hits, and the found objects on boxes with the share flagged doubtful."""
-    count = {o: sum(r["outcome"] == o for r in rows) for o in (HIT, MISS, FALSE_POSITIVE, ON_BOX, BOX_UNFOUND)}
+    accuracy over the hits, the found objects on boxes with the share flagged doubtful, and the
+    reported boxes: on true boxes, on furniture, on nothing."""
+    outcomes = (HIT, MISS, FALSE_POSITIVE, ON_BOX, BOX_UNFOUND, BOX_FOUND, FALSE_BOX)
+    count = {o: sum(r["outcome"] == o for r in rows) for o in outcomes}
     hits = [r for r in rows if r["outcome"] == HIT]
     on_box = [r for r in rows if r["outcome"] == ON_BOX]
     return {
         "true_furniture": count[HIT] + count[MISS], "found": count[HIT] + count[FALSE_POSITIVE] + count[ON_BOX],
         "hits": count[HIT], "missed": count[MISS], "false_positives": count[FALSE_POSITIVE],
-        "found_on_boxes": count[ON_BOX], "boxes": count[ON_BOX] + count[BOX_UNFOUND],
+        "found_on_boxes": count[ON_BOX], "boxes": count[ON_BOX] + count[BOX_UNFOUND] + count[BOX_FOUND],
+        "boxes_found": count[BOX_FOUND], "false_boxes": count[FALSE_BOX],
+        "furniture_as_boxes": sum(r["outcome"] == MISS and r["found_class"] == BOX for r in rows),
         "recall": _share(count[HIT], count[HIT] + count[MISS]),
         "precision": _share(count[HIT], count[HIT] + count[FALSE_POSITIVE]),
         "class_accuracy": _share(sum(r["found_class"] == r["true_class"] for r in hits), len(hits)),

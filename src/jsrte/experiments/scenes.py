@@ -25,6 +25,7 @@ import trimesh
 from jsrte.atomic import read_csv_rows, write_bytes_atomic, write_csv_atomic, write_json_atomic
 from jsrte.errors import JsrteError
 from jsrte.experiments.scene_scoring import (
+    BOX,
     FURNITURE,
     HIT,
     FoundObject,
@@ -156,6 +157,7 @@ def run_room(room: int, config: ScenesConfig, out: Path) -> list[dict]:
         write_scene_outputs(scene, out / "fits" / f"{room:03d}", extra={"input": str(scan.resolve())})
         failure = "; ".join(f"object {o.index}: {o.reason}" for o in scene.objects if o.status == "failed")
     found = [FoundObject(o.index, o.model, _found_centre(o), o.result.flag) for o in found_objects]
+    found += [] if scene is None else [FoundObject(o.index, BOX, o.box.cuboid.centre) for o in scene.boxes]
     rows = object_rows(truth, found)
     by_index = {o.index: o for o in found_objects}
     rng = np.random.default_rng(config.seed)
@@ -276,7 +278,8 @@ def _room_line(room: int, rows: list[dict]) -> str:
     d = detection(rows)
     seconds = rows[0]["scene_seconds"] if rows else 0.0
     return (f"room {room:03d}: {d['hits']} of {d['true_furniture']} found, {d['false_positives']} false "
-            f"positive(s), {d['found_on_boxes']} on boxes, {seconds:.0f} s")
+            f"positive(s), {d['boxes_found']} of {d['boxes']} boxes reported, {d['found_on_boxes']} fitted, "
+            f"{seconds:.0f} s")
 
 
 def summarize(rows: list[dict]) -> dict:
@@ -297,7 +300,8 @@ def summarize(rows: list[dict]) -> dict:
 SUMMARY_LABELS = (
     ("rooms", "rooms"), ("true furniture objects", "true_furniture"), ("objects found", "found"),
     ("detection recall", "recall"), ("detection precision", "precision"), ("missed", "missed"),
-    ("false positives", "false_positives"), ("boxes / found on a box", None),
+    ("false positives", "false_positives"), ("boxes / reported as boxes / fitted as furniture", None),
+    ("furniture reported as a box / boxes reported where none stands", None),
     ("share of box detections flagged doubtful", "boxes_flagged_doubtful"),
     ("class accuracy (matched objects)", "class_accuracy"),
     ("mean F@5% vs complete true shape (matched)", "fscore_mean"), ("median F@5% (matched)", "fscore_median"),
@@ -325,7 +329,9 @@ def summary_markdown(summary: dict, table: dict, config: ScenesConfig) -> str:
              "found objects on boxes are neither hits nor false positives.", "", "| | |", "|---|---|"]
     for label, key in SUMMARY_LABELS:
         if key is None and label.startswith("boxes"):
-            value = f"{summary['boxes']} / {summary['found_on_boxes']}"
+            value = f"{summary['boxes']} / {summary['boxes_found']} / {summary['found_on_boxes']}"
+        elif key is None and label.startswith("furniture"):
+            value = f"{summary['furniture_as_boxes']} / {summary['false_boxes']}"
         elif key is None:
             value = f"{summary['fits_below_0.7']} / {summary['fits_at_least_0.85']} of {summary['scored']}"
         else:

@@ -5,12 +5,14 @@ the class unknown, every cluster is cut at its weak necks (:data:`SCENE_SEGMENT`
 staying a candidate beside its parts: two objects side by side and one object with a narrow
 place look alike before a fit. Then:
 
-1. every candidate that may be an object (not too small, too flat or too big) is fitted
+0. every candidate that may be an object and is an upright cuboid seen solid is a box
+   (``jsrte.scans.boxes``): clutter no model covers, recorded with its cuboid and never fitted;
+1. every other candidate that may be an object (not too small, too flat or too big) is fitted
    quickly by each model (``jsrte.fit.screen.choose_class``: the same scale-free screen score
    that picks the class of a single object); with one model, only the candidates of a split;
 2. each split is judged by those fits (:func:`judge_splits`): the whole is one object where its
    fit explains its points as well as its parts' fits explain theirs, and the points of every
-   part nearly as well as that part's own fit; else its parts are;
+   part nearly as well as that part's own fit, and no part is a box; else its parts are;
 3. every object left gets the full fit with its class and the preset's settings; where the
    screen leaves two classes close, their full fits decide (``jsrte.fit.classes``); a full fit
    that lies on almost none of its points is fitted again (:data:`ESCAPE_PRESET`);
@@ -46,6 +48,7 @@ from jsrte.fit.screen import CLASS_FIT, SCREEN_FIT, Choice, Screened, ScreenSett
 from jsrte.options import FitOptions
 from jsrte.presets import SCENE_PRESET
 from jsrte.result import FitResult
+from jsrte.scans.boxes import BoxEvidence, BoxSettings, candidate_boxes
 from jsrte.scans.segment import SegmentSettings
 
 
@@ -60,7 +63,7 @@ class SceneObject:
     points : (m, 3) float64 its scan points (scan units)
     status : "ok" (fitted: an object of its class), "unexplained" (fitted, but its fit lies on
         fewer than :data:`EXPLAINED_SHARE` of its points, or its size is none of its class's:
-        no model covers it) or "failed"
+        no model covers it), "box" (a box: not fitted, its cuboid in ``box``) or "failed"
     reason : why it failed or is unexplained ("" when fitted)
     model : the name of the model fitted (the class), None when it failed before the choice
     class_choice : every class's screen score and the margin (None with one model)
@@ -69,6 +72,7 @@ class SceneObject:
         a text: why it could not be)
     unexplained_by : which check left it unexplained: "share", "size", "coverage", "top" or
         "second fit" ("" when it is not)
+    box : the evidence that it is a box, its cuboid in it (None: not a box)
     """
 
     index: int
@@ -81,6 +85,7 @@ class SceneObject:
     result: FitResult | None = None
     choice: Choice | str | None = field(default=None, repr=False)
     unexplained_by: str = ""
+    box: BoxEvidence | None = field(default=None, repr=False)
 
     @property
     def centre(self) -> list[float]:
@@ -92,6 +97,9 @@ class SceneObject:
         entry: dict[str, Any] = {"index": self.index, "folder": f"objects/{self.index:02d}", "status": self.status,
                                  "candidate": self.candidate, "points": len(self.points),
                                  "candidate_centre": [round(v, 5) for v in self.centre], "class": self.model}
+        if self.box is not None:
+            entry.update({"folder": None, "class": BOX_CLASS, "cuboid": self.box.cuboid.to_json(),
+                          "box_evidence": self.box.to_json()})
         if self.class_choice is not None:
             entry["class_scores"] = self.class_choice.get("scores")
             entry["class_margin"] = self.class_choice.get("margin")
@@ -148,6 +156,11 @@ class SceneResult:
         """The objects found: fitted, and explained by their class's fit."""
         return [o for o in self.objects if o.status == "ok"]
 
+    @property
+    def boxes(self) -> list[SceneObject]:
+        """The objects found to be boxes (not fitted)."""
+        return [o for o in self.objects if o.status == BOX_CLASS]
+
     def to_json(self) -> dict[str, Any]:
         """scene.json: the objects, the skipped candidates, walls, floor and options."""
         seg = self.segmentation
@@ -156,8 +169,10 @@ class SceneResult:
                           "offset": self.floor_offset},
                 "walls": seg.get("walls", []), "removed": seg.get("removed", {}),
                 "objects": [o.to_json() for o in self.objects], "skipped": self.skipped, "covered": self.covered,
-                "counts": {"fitted": len(self.found), "unexplained": len(self.fitted) - len(self.found),
-                           "failed": len(self.objects) - len(self.fitted), "skipped": len(self.skipped)},
+                "counts": {"fitted": len(self.found), "boxes": len(self.boxes),
+                           "unexplained": len(self.fitted) - len(self.found),
+                           "failed": len(self.objects) - len(self.fitted) - len(self.boxes),
+                           "skipped": len(self.skipped)},
                 "timing_s": self.timing}
 
 
@@ -177,6 +192,14 @@ forward-pass screen keeping the best four of all. Beds, sofas and tables vary in
 more than chairs; a bed's quick fit started from its height alone can end far off, and the
 judgement then cuts the bed into pieces. A scene weighs each fit's size after the class is
 chosen instead (:data:`SIZE_MARGIN`)."""
+
+
+BOX_CLASS = "box"
+"""The class (and status) of a scene object found to be a box (``jsrte.scans.boxes``)."""
+
+
+SCENE_BOXES = BoxSettings()
+"""What makes a scene's candidate a box (``jsrte.scans.boxes.BoxSettings``)."""
 
 
 SCENE_FLOAT32_RETRY = False
@@ -274,7 +297,7 @@ classes' tops (a bed's headboard, a sofa's back) are often unseen on right fits.
 
 def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions | None = None,
               screen: ScreenSettings = SCENE_SCREEN, progress: bool = False, workers: int = 1,
-              **changes: object) -> SceneResult:
+              boxes: BoxSettings | None = SCENE_BOXES, **changes: object) -> SceneResult:
     """Fit every object standing on the floor of the scan at ``path``.
 
     Parameters
@@ -290,6 +313,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     workers : objects screened and fitted at once, each in a thread of its own with one PyTorch
         thread (the fits' PyTorch and NumPy work runs outside Python's interpreter lock); 1: one
         after the other, with PyTorch's threads as they are set
+    boxes : what makes a candidate a box (None: nothing is, every candidate is fitted)
     changes : options by name, applied over ``options``
 
     Raises ``JsrteError`` when the scan holds no object (saying what segmentation removed).
@@ -313,23 +337,26 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
                                 viewpoints=_array(options.viewpoints), settings=settings.scan_sdf,
                                 units_check=options.units_check, shape=shape,
                                 segment=SegmentSettings() if shape is not None else SCENE_SEGMENT)
+        found_boxes = {} if boxes is None else candidate_boxes(cands, cands.possible(), boxes)
     screen = screen.held_to_sizes(settings.fit.size_margin)
     segmented = cands.segmented
     seg = cands.segmentation
     cloud_points = np.asarray(segmented.cloud.points, float)
-    to_screen = _to_screen(cands, several=len(models) > 1)
+    to_screen = _to_screen(cands, several=len(models) > 1, boxes=set(found_boxes))
     with _timed(timing, "quick fits"):
         screened = dict(_in_threads(lambda k: _screen_candidate(k, cands, models, options, screen), to_screen,
                                     workers, bar=f"quick fits of {len(to_screen)} candidates by {len(models)} "
                                     "model(s)" if progress and to_screen else None, unit="candidate"))
-        covered = judge_splits(seg.candidates, screened, models, screen, options.seed)
+        covered = judge_splits(seg.candidates, screened, models, screen, options.seed, boxes=set(found_boxes))
     found = [k for k in cands.possible() if k not in covered]
     objects = [SceneObject(number, k, cloud_points[segmented.index[seg.candidates[k].index]],
-                           choice=screened.get(k))
+                           choice=screened.get(k), box=found_boxes.get(k),
+                           status=BOX_CLASS if k in found_boxes else "ok")
                for number, k in enumerate(found)]
+    to_fit = [o for o in objects if o.box is None]
     with _timed(timing, "full fits"):
-        _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), objects, workers,
-                    bar=f"fitting {len(objects)} objects" if progress and objects else None, unit="object")
+        _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), to_fit, workers,
+                    bar=f"fitting {len(to_fit)} objects" if progress and to_fit else None, unit="object")
     with _timed(timing, "checks"):
         for obj in objects:
             _mark_coverage(obj, options.seed)
@@ -364,11 +391,16 @@ def _timed(timing: dict[str, float], phase: str) -> Iterator[None]:
         timing[phase] = round(timing.get(phase, 0.0) + time.perf_counter() - started, 2)
 
 
-def _to_screen(cands: object, several: bool) -> list[int]:
-    """The candidates to fit quickly: with ``several`` models every one (its class is chosen so);
-    with one, those of a split (a whole and its parts are judged against each other)."""
+def _to_screen(cands: object, several: bool, boxes: set[int] = frozenset()) -> list[int]:
+    """The candidates to fit quickly: with ``several`` models every one (its class is chosen so)
+    but the ``boxes`` outside any split; with one, those of a split (a whole and its parts are
+    judged against each other)."""
     candidates = cands.segmentation.candidates
-    return [k for k in cands.possible() if several or candidates[k].parts or candidates[k].parent is not None]
+
+    def in_split(k: int) -> bool:
+        return bool(candidates[k].parts) or candidates[k].parent is not None
+
+    return [k for k in cands.possible() if in_split(k) or (several and k not in boxes)]
 
 
 def _screen_candidate(k: int, cands: object, models: dict, options: FitOptions,
@@ -391,7 +423,7 @@ def _query(cands: object, k: int, options: FitOptions) -> SdfQuery:
 
 
 def judge_splits(candidates: list, screened: dict[int, Choice | str], models: dict, settings: ScreenSettings,
-                 seed: int) -> set[int]:
+                 seed: int, boxes: set[int] = frozenset()) -> set[int]:
     """The candidates that are not objects of their own, each split judged by the quick fits of
     its whole and its parts (``jsrte.fit.screen.split_or_whole``): a candidate scores its best
     class's screen score, and the whole's best fit must lie at most ``whole_explains`` times
@@ -401,14 +433,20 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     is) as that part's own best fit (``jsrte.fit.screen.explained_ratio``, each fit by its own model). A
     single object's split asks it of the best part only; a scene keeps every part, and a table
     fitted to a table and the chair beside it explains the table's points well but not the
-    chair's. ``screened``: candidate position -> its screens (or why it has none: a whole that
+    chair's. A whole of which a part (or a part's part) is one of ``boxes`` holds several
+    objects. ``screened``: candidate position -> its screens (or why it has none: a whole that
     has none, or has a part with none, is not judged, its parts stand)."""
     from jsrte.fit.screen import explained_ratio, split_or_whole
 
     def best(k: int) -> Screened:
         return min(screened[k].screened, key=lambda s: s.score)
 
+    def holds_box(k: int) -> bool:
+        return any(p in boxes or holds_box(p) for p in candidates[k].parts)
+
     def explains(whole: int, best_part: int, objects: list[list[int]]) -> float:
+        if holds_box(whole):
+            return float("inf")
         parts = {best_part}
         for part, stands_for in zip(candidates[whole].parts, objects, strict=True):
             explained = [o for o in stands_for if best(o).score <= PART_EXPLAINED]

@@ -19,6 +19,8 @@ OVERLAY_POINTS = 30_000
 CLASS_COLORS = {"chair": (214, 69, 65), "table": (52, 120, 198), "sofa": (67, 160, 71), "bed": (243, 156, 18)}
 """RGB of each shipped class in scene.ply; other classes take ``OTHER_COLORS`` in turn."""
 OTHER_COLORS = ((142, 68, 173), (22, 160, 133), (127, 140, 141), (211, 84, 0))
+BOX_COLOR = (149, 117, 87)
+"""RGB of the boxes' cuboids in scene.ply."""
 
 
 @timed_stage("outputs")
@@ -26,7 +28,8 @@ def write_scene_outputs(scene: SceneResult, out_dir: Path, *, extra: dict | None
     """Write ``scene`` into ``out_dir`` (each file atomically; scene.json last): every fitted
     object's files in ``objects/NN/`` (``jsrte.fit.outputs.write_fit_outputs``; unexplained
     objects' too), ``scene.ply`` (every found object's retrieved mesh in the scan's frame,
-    coloured by class), ``overlay.png`` (the scan's points and those meshes) and ``scene.json``.
+    coloured by class, and the boxes' cuboids), ``overlay.png`` (the scan's points and those
+    meshes) and ``scene.json``.
     Returns the paths written."""
     from jsrte.fit.outputs import write_fit_outputs
     from jsrte.geometry.mesh import save_mesh
@@ -46,8 +49,9 @@ def write_scene_outputs(scene: SceneResult, out_dir: Path, *, extra: dict | None
     points = np.concatenate([o.points for o in scene.objects]) if scene.objects else scene.scan_points
     if len(points) > OVERLAY_POINTS:
         points = points[np.random.default_rng(0).choice(len(points), OVERLAY_POINTS, replace=False)]
+    boxes = f", {len(scene.boxes)} box(es)" if scene.boxes else ""
     render_overlay(mesh, points, out_dir / "overlay.png", up=up,
-                   title=f"{len(scene.found)} object(s): " + ", ".join(o.model or "?" for o in scene.found))
+                   title=f"{len(scene.found)} object(s){boxes}: " + ", ".join(o.model or "?" for o in scene.found))
     written.append(out_dir / "overlay.png")
     write_json_atomic(out_dir / SCENE_NAME, scene.to_json() | (extra or {}))
     written.append(out_dir / SCENE_NAME)
@@ -56,8 +60,9 @@ def write_scene_outputs(scene: SceneResult, out_dir: Path, *, extra: dict | None
 
 def scene_mesh(scene: SceneResult) -> trimesh.Trimesh | None:
     """Every found object's retrieved mesh in the scan's frame as one mesh, its vertices coloured
-    by the object's class (:data:`CLASS_COLORS`); None when no fit has a mesh. Unexplained
-    objects are left out: their meshes are not what was scanned."""
+    by the object's class (:data:`CLASS_COLORS`), and every box's cuboid (:data:`BOX_COLOR`);
+    None when there is neither. Unexplained objects are left out: their meshes are not what was
+    scanned."""
     palette = dict(CLASS_COLORS)
     parts = []
     for obj in scene.found:
@@ -70,4 +75,8 @@ def scene_mesh(scene: SceneResult) -> trimesh.Trimesh | None:
         colors = np.tile(np.array([*palette[name], 255], np.uint8), (len(mesh.vertices), 1))
         parts.append(trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), vertex_colors=colors,
                                      process=False))
+    for obj in scene.boxes:
+        cuboid = obj.box.cuboid.mesh()
+        colors = np.tile(np.array([*BOX_COLOR, 255], np.uint8), (len(cuboid.vertices), 1))
+        parts.append(trimesh.Trimesh(cuboid.vertices, cuboid.faces, vertex_colors=colors, process=False))
     return trimesh.util.concatenate(parts) if parts else None

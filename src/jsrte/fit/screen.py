@@ -133,6 +133,10 @@ class ScreenSettings:
     slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs
     are screened only where fewer than ``candidates`` others are, and are chosen only where
     nothing else was screened (0: no slabs)."""
+    boxes_last: bool = True
+    """Boxes (``jsrte.scans.boxes``: an upright cuboid seen solid, clutter no model covers) are
+    screened, as slabs are, only where fewer than ``candidates`` others are, and chosen only
+    where nothing else was screened."""
     grow_within: float = 0.03
     """A chosen candidate that is a piece of a bigger cluster takes in that cluster's points
     within this many of its radii of its fitted surface (the rest of the object, which a cut
@@ -304,7 +308,7 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
                 screened.append(screen(models[name], name, queries[key], k, settings, seed, rank))
 
     for name, cands in per_model.items():
-        run(name, cands, screened_candidates(cands, settings.candidates, slabs(cands, settings.slab_m)))
+        run(name, cands, screened_candidates(cands, settings.candidates, set_aside(cands, settings)))
         if len(models) == 1:
             run(name, cands, cut_necks(cands.segmentation.candidates, screened, settings.neck_score))
     if not screened:
@@ -342,7 +346,7 @@ def _object_of(name: str, cands: object, screened: list[Screened], refits: list[
     own = _with_refits([s for s in screened if s.model == name], [r for r in refits if r.model == name])
     covered = _covered(cands, own, model, settings, seed)
     scores = {s.candidate: s.score for s in own}
-    thin = slabs(cands, settings.slab_m)
+    thin = set_aside(cands, settings)
     eligible = [s for s in own if s.candidate not in covered]
     best = min([s for s in eligible if s.candidate not in thin] or eligible,
                key=lambda s: _best_within(cands.segmentation.candidates, scores, s.candidate))
@@ -504,6 +508,26 @@ def thickness(points: np.ndarray) -> float:
     centred = points - points.mean(axis=0)
     axis = np.linalg.eigh(np.cov(centred.T))[1][:, 0]
     return float(np.ptp(np.percentile(centred @ axis, [5, 95])))
+
+
+def set_aside(cands: object, settings: ScreenSettings) -> set[int]:
+    """Positions of the valid candidates of ``cands`` screened and chosen last: slabs
+    (:func:`slabs`) and, with ``boxes_last``, boxes (:func:`boxes`)."""
+    return slabs(cands, settings.slab_m) | (boxes(cands) if settings.boxes_last else set())
+
+
+def boxes(cands: object) -> set[int]:
+    """Positions of the valid candidates of ``cands`` (``ScanCandidates``) that are boxes
+    (``jsrte.scans.boxes.candidate_boxes``); each one's evidence goes to its summary (``box``:
+    False where it is none)."""
+    from jsrte.scans.boxes import candidate_boxes
+
+    candidates = cands.segmentation.candidates
+    todo = [k for k in cands.valid() if "box" not in candidates[k].summary]
+    found = candidate_boxes(cands, todo)
+    for k in todo:
+        candidates[k].summary["box"] = found[k].to_json() if k in found else False
+    return {k for k in cands.valid() if candidates[k].summary["box"]}
 
 
 def slabs(cands: object, slab_m: float) -> set[int]:

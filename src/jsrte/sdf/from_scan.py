@@ -104,7 +104,7 @@ def ray_freespace_samples(
     radius *= settings.ray_region_factor
     seen = np.asarray(observed_points, dtype=np.float64)
     seen = seen[np.linalg.norm(seen - centre, axis=1) < radius]
-    pairs = _visible_pairs(seen, viewpoints)
+    pairs = visible_pairs(seen, viewpoints)
     if not len(pairs):
         return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
     pick = pairs[rng.integers(0, len(pairs), size=n)]
@@ -118,7 +118,7 @@ def ray_freespace_samples(
     return xyz[keep].astype(np.float32), distance[keep].astype(np.float32)
 
 
-def _visible_pairs(points: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
+def visible_pairs(points: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
     """(p, 2) int: (point index, viewpoint index) for every point a viewpoint sees."""
     pairs = [np.zeros((0, 2), dtype=np.int64)]
     for k, viewpoint in enumerate(viewpoints):

@@ -9,7 +9,8 @@ Layouts understood::
 
     FIT/fit.json, shape.ply, overlay.png                      (jsrte fit)
     OUT/<name>/fit.json ..., OUT/summary.csv                  (jsrte fit-many: a batch)
-    SCENE/scene.json, SCENE/objects/<NN>/fit.json ...         (a scene: one fit per object)
+    SCENE/scene.json, SCENE/objects/<NN>/fit.json ...         (a scene: one fit per object, and
+                                                              its boxes' cuboids in scene.json)
     CODE.jsrte                                                (jsrte encode: a shape code)
 
 Only NumPy, trimesh and pykdtree are imported here; PyTorch only to decode a ``.jsrte`` code.
@@ -75,13 +76,16 @@ class FitEntry:
     Attributes
     ----------
     name : its name in lists (the result folder's name, the object's number, the code's stem)
-    folder : the fit folder (None for a code)
-    code : the ``.jsrte`` file (None for a fit folder)
+    folder : the fit folder (None for a code or a box)
+    code : the ``.jsrte`` file (None for a fit folder or a box)
+    box : a box of a scene: its scene.json entry (``cuboid``, ``points``, ``box_evidence``) and
+        the scene folder in ``folder``
     """
 
     name: str
     folder: Path | None = None
     code: Path | None = None
+    box: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -148,15 +152,31 @@ def find_fits(path: str | Path) -> Collection:
     if (path / RESULT_NAME).is_file():
         return Collection("fit", path, [FitEntry(path.name, folder=path)])
     if (path / SCENE_NAME).is_file():
-        objects = _fit_folders(path / SCENE_OBJECTS)
-        if objects:
-            return Collection("scene", path, [FitEntry(f.name, folder=f) for f in objects])
+        entries = [FitEntry(f.name, folder=f) for f in _fit_folders(path / SCENE_OBJECTS)] + _scene_boxes(path)
+        if entries:
+            return Collection("scene", path, sorted(entries, key=lambda e: e.name))
     folders = _fit_folders(path)
     if folders:
         return Collection("batch", path, [FitEntry(f.name, folder=f) for f in folders])
     raise JsrteError(f"holds no fit: expected {RESULT_NAME} (jsrte fit), result folders holding it (jsrte "
                      f"fit-many), {SCENE_NAME} with {SCENE_OBJECTS}/<NN>/{RESULT_NAME} (a scene), or give a "
                      f"{CODE_SUFFIX} shape code", path)
+
+
+def _scene_boxes(scene: Path) -> list[FitEntry]:
+    """The boxes of the scene in folder ``scene`` (its scene.json's objects of status ``box``
+    with a cuboid); none where scene.json cannot be read."""
+    try:
+        record = json.loads((scene / SCENE_NAME).read_text())
+    except (OSError, ValueError):
+        return []
+    if not isinstance(record, dict) or not isinstance(record.get("objects"), list):
+        return []
+    objects = record["objects"]
+    return [FitEntry(f"{o['index']:02d}", folder=scene, box=o | {"input": record.get("input"),
+                                                                "floor": record.get("floor")})
+            for o in objects if isinstance(o, dict) and o.get("status") == "box" and isinstance(o.get("cuboid"), dict)
+            and isinstance(o.get("index"), int)]
 
 
 def _fit_folders(parent: Path) -> list[Path]:
@@ -174,6 +194,8 @@ def load_item(entry: FitEntry, *, max_scan_points: int = 200_000) -> FitItem:
     if entry.code is not None:
         return _load_code(entry)
     assert entry.folder is not None
+    if entry.box is not None:
+        return _load_box(entry, max_scan_points)
     item = FitItem(entry.name)
     fit_json = entry.folder / RESULT_NAME
     try:
@@ -198,6 +220,41 @@ def load_item(entry: FitEntry, *, max_scan_points: int = 200_000) -> FitItem:
     item.truth, truth_floor = _truth(scan_path, item.problems)
     item.floor = truth_floor or _floor_from_up(fit.get("up"), item.scan, item.mesh)
     item.numbers = _numbers(fit, item)
+    return item
+
+
+def _load_box(entry: FitEntry, max_scan_points: int) -> FitItem:
+    """A box of a scene (``entry.box``): its cuboid as the mesh, the scene's scan and floor."""
+    import trimesh
+
+    item = FitItem(entry.name)
+    box = entry.box
+    try:
+        cuboid = box["cuboid"]
+        frame = np.eye(4)
+        frame[:3, :3] = np.asarray(cuboid["axes"], float).reshape(3, 3).T
+        frame[:3, 3] = np.asarray(cuboid["centre"], float).reshape(3)
+        extents = np.asarray(cuboid["extents"], float).reshape(3)
+        if not (np.all(np.isfinite(frame)) and np.all(extents > 0)):
+            raise ValueError("its centre, axes or extents are not finite and positive")
+        item.mesh = trimesh.creation.box(extents=extents, transform=frame)
+    except (KeyError, TypeError, ValueError) as exc:
+        item.fit_read = False
+        item.problems.append(f"{entry.folder / SCENE_NAME}: box {entry.name} is not readable ({_reason(exc)})")
+        return item
+    scan_path = _scan_path(box.get("input"), entry.folder)
+    if scan_path is not None:
+        item.scan = _scan_points(scan_path, item.problems, max_scan_points)
+    floor = box.get("floor") or {}
+    try:
+        item.floor = Plane(_unit(floor["up"]), float(floor["offset"]))
+    except (KeyError, TypeError, ValueError):
+        item.floor = None
+    evidence = box.get("box_evidence") or {}
+    item.numbers = {"class": "box", "size (m)": " × ".join(f"{v:.2f}" for v in extents),
+                    "points": str(box.get("points", "?"))}
+    if isinstance(evidence.get("seen_through"), int | float):
+        item.numbers["seen through"] = f"{evidence['seen_through']:.3f} per point"
     return item
 
 

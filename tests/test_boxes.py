@@ -1,0 +1,155 @@
+"""Boxes: an upright cuboid seen solid is told apart before any fit; a table, seen through, is not."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import trimesh
+
+from jsrte.fit.query import scan_candidates
+from jsrte.fit.scene import SCENE_SEGMENT
+from jsrte.scans.boxes import BoxSettings, box_evidence, upright_cuboid
+from jsrte.scans.scene import SceneSettings, scan_room, write_room
+from test_clutter import table
+
+ROOM = SceneSettings(scanner=replace(SceneSettings().scanner, width=240, height=180), walls=(1, 1),
+                     wall_gap_m=(0.2, 0.3), first_neighbour_gap_m=(0.3, 0.4), mixed_pixel_fraction=0.1)
+"""A wall, a box and a table well apart from it (one cluster each)."""
+
+BOX_EXTENTS = (0.6, 0.45, 0.4)
+"""The box's edges (metres; the second is its height)."""
+
+
+def standing_box() -> trimesh.Trimesh:
+    """A closed box of :data:`BOX_EXTENTS` standing on y = 0."""
+    box = trimesh.creation.box(extents=BOX_EXTENTS)
+    box.apply_translation([0.0, BOX_EXTENTS[1] / 2.0, 0.0])
+    return box
+
+
+@pytest.fixture(scope="module")
+def box_room(tmp_path_factory):
+    room = scan_room(standing_box(), rng=np.random.default_rng(4), settings=ROOM, target_kind="box",
+                     others=[("table", table(), "test")])
+    return write_room(room, tmp_path_factory.mktemp("box_room"), seed=4)
+
+
+def true_centres(scan_path) -> dict[str, tuple[np.ndarray, float]]:
+    """Each object's class -> its bounding-box centre (3,) in the scan's frame and its scale (the
+    room scales each object's mesh)."""
+    from jsrte.geometry.sim3 import Sim3
+
+    truth = json.loads((scan_path.parent / "scene.json").read_text())
+    centres = {}
+    for entry in truth["objects"]:
+        mesh = trimesh.load(scan_path.parent / entry["mesh"], process=False)
+        pose = Sim3.from_dict(entry["scan_from_mesh"])
+        vertices = pose.apply(np.asarray(mesh.vertices))
+        centres[entry["class"]] = ((vertices.min(0) + vertices.max(0)) / 2.0, float(pose.s))
+    return centres
+
+
+def test_the_upright_cuboid_of_a_turned_box_in_any_frame_is_the_box():
+    rng = np.random.default_rng(0)
+    box = standing_box()
+    box.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30.0), [0, 1, 0]))
+    world = trimesh.transformations.random_rotation_matrix(rng.random(3))
+    world[:3, 3] = [1.0, -2.0, 0.5]
+    box.apply_transform(world)
+    points, faces = trimesh.sample.sample_surface(box, 20_000, seed=0)
+    up = world[:3, :3] @ [0.0, 1.0, 0.0]
+    seen = points[np.abs(box.face_normals[faces] @ up + 1.0) > 1e-6]  # the bottom stands on the floor
+    cuboid = upright_cuboid(seen, up, float(up @ world[:3, 3]))
+    width, height, depth = BOX_EXTENTS
+    assert np.allclose(sorted(cuboid.extents[:2]), sorted([width, depth]), atol=0.02)
+    assert cuboid.extents[2] == pytest.approx(height, abs=0.01)
+    assert np.allclose(cuboid.centre, box.bounds.mean(axis=0), atol=0.01)
+    edges = world[:3, :3] @ trimesh.transformations.rotation_matrix(np.radians(30.0), [0, 1, 0])[:3, :3]
+    assert np.abs(cuboid.axes[0] @ edges[:, 0]) > 0.999 or np.abs(cuboid.axes[0] @ edges[:, 2]) > 0.999
+    assert np.allclose(cuboid.axes[2], up)
+    mesh = cuboid.mesh()
+    assert mesh.is_watertight and mesh.volume == pytest.approx(width * height * depth, rel=0.08)
+
+
+def test_a_box_seen_solid_is_a_box_and_a_table_seen_through_is_not(box_room):
+    cands = scan_candidates(box_room, rng=np.random.default_rng(0), segment=SCENE_SEGMENT)
+    segmented = cands.segmented
+    points = np.asarray(segmented.cloud.points, float)
+    centres = true_centres(box_room)
+    by_class = {}
+    for k in cands.valid():
+        own = points[segmented.index[cands.segmentation.candidates[k].index]]
+        kind = min(centres, key=lambda c: np.linalg.norm(own.mean(axis=0) - centres[c][0]))
+        by_class[kind] = own
+    assert set(by_class) == {"box", "table"}
+
+    def evidence(kind: str, viewpoints: np.ndarray | None = segmented.viewpoints):
+        return box_evidence(by_class[kind], segmented.up, segmented.floor.offset, segmented.seen_points(),
+                            viewpoints)
+
+    box, board = evidence("box"), evidence("table")
+    assert box.is_box and box.seen_through <= BoxSettings().max_seen_through
+    scale = centres["box"][1]
+    assert np.allclose(sorted(box.cuboid.extents[:2]), scale * np.sort([BOX_EXTENTS[0], BOX_EXTENTS[2]]), atol=0.05)
+    assert box.cuboid.extents[2] == pytest.approx(scale * BOX_EXTENTS[1], abs=0.03)
+    assert not board.is_box
+    if board.seen_through is not None:  # its top and legs on the faces: the cameras see under it
+        assert board.seen_through > BoxSettings().max_seen_through
+    assert not evidence("box", None).is_box  # without the cameras nothing is seen through: no box
+
+
+@pytest.mark.slow
+def test_a_scene_reports_a_box_without_fitting_it(box_room, short_fits, monkeypatch, tmp_path):
+    from jsrte.fit import scene as scene_module
+    from jsrte.fit.scene_outputs import BOX_COLOR, write_scene_outputs
+
+    short_fits("iterations", quick=True)
+    screened: list[int] = []
+    original = scene_module._screen_candidate
+
+    def screen(k, *args, **kw):
+        screened.append(k)
+        return original(k, *args, **kw)
+
+    monkeypatch.setattr(scene_module, "_screen_candidate", screen)
+    scene = scene_module.fit_scene(box_room, model="chair,table")
+    assert len(scene.boxes) == 1
+    box = scene.boxes[0]
+    assert box.status == "box" and box.result is None and box.candidate not in screened
+    assert np.linalg.norm(box.box.cuboid.centre - true_centres(box_room)["box"][0]) < 0.05
+    assert all(o.model == "table" for o in scene.found)
+    written = write_scene_outputs(scene, tmp_path / "scene")
+    record = json.loads((tmp_path / "scene" / "scene.json").read_text())
+    entry = next(o for o in record["objects"] if o["status"] == "box")
+    assert entry["class"] == "box" and entry["folder"] is None and record["counts"]["boxes"] == 1
+    assert np.allclose(entry["cuboid"]["centre"], box.box.cuboid.centre, atol=1e-4)
+    assert not (tmp_path / "scene" / "objects" / f"{box.index:02d}").exists()
+    colours = np.asarray(trimesh.load(tmp_path / "scene" / "scene.ply", process=False).visual.vertex_colors)
+    assert (colours[:, :3] == BOX_COLOR).all(axis=1).sum() == 8 and tmp_path / "scene" / "scene.ply" in written
+
+    cands = scan_candidates(box_room, rng=np.random.default_rng(0), segment=SCENE_SEGMENT)
+    assert box.candidate in scene_module._to_screen(cands, several=True)  # not a box: screened
+
+
+def test_a_single_fit_screens_a_box_last(box_room):
+    """Choosing one object of a class, a box is screened (and chosen) only after every other
+    candidate; its evidence is recorded in its candidate's summary."""
+    from jsrte.fit.screen import ScreenSettings, boxes, screened_candidates, set_aside
+
+    cands = scan_candidates(box_room, rng=np.random.default_rng(0), segment=SCENE_SEGMENT)
+    points = np.asarray(cands.segmented.cloud.points, float)
+    centres = true_centres(box_room)
+
+    def kind(k: int) -> str:
+        own = points[cands.segmented.index[cands.segmentation.candidates[k].index]]
+        return min(centres, key=lambda c: np.linalg.norm(own.mean(axis=0) - centres[c][0]))
+
+    found = boxes(cands)
+    assert [kind(k) for k in found] == ["box"]
+    (box,) = found
+    assert cands.segmentation.candidates[box].summary["box"]["seen_through"] <= BoxSettings().max_seen_through
+    assert [kind(k) for k in screened_candidates(cands, 1, set_aside(cands, ScreenSettings()))] == ["table"]
+    assert box not in set_aside(cands, ScreenSettings(boxes_last=False))

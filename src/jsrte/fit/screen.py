@@ -512,8 +512,11 @@ def thickness(points: np.ndarray) -> float:
 
 def set_aside(cands: object, settings: ScreenSettings) -> set[int]:
     """Positions of the valid candidates of ``cands`` screened and chosen last: slabs
-    (:func:`slabs`) and, with ``boxes_last``, boxes (:func:`boxes`)."""
-    return slabs(cands, settings.slab_m) | (boxes(cands) if settings.boxes_last else set())
+    (:func:`slabs`) and, with ``boxes_last`` and more than one valid candidate, boxes
+    (:func:`boxes`; a lone candidate is chosen whatever it is, and its box test, which may look
+    along every line of sight near it, is spared)."""
+    several = settings.boxes_last and len(cands.valid()) > 1
+    return slabs(cands, settings.slab_m) | (boxes(cands) if several else set())
 
 
 def boxes(cands: object) -> set[int]:

@@ -17,7 +17,7 @@ demo: setup
 test: setup
 	@bash scripts/setup-test-extras.sh
 	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks

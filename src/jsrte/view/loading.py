@@ -225,19 +225,20 @@ def load_item(entry: FitEntry, *, max_scan_points: int = 200_000) -> FitItem:
 
 def _load_box(entry: FitEntry, max_scan_points: int) -> FitItem:
     """A box of a scene (``entry.box``): its cuboid as the mesh, the scene's scan and floor."""
-    import trimesh
+    from jsrte.scans.boxes import Cuboid
 
     item = FitItem(entry.name)
     box = entry.box
     try:
-        cuboid = box["cuboid"]
-        frame = np.eye(4)
-        frame[:3, :3] = np.asarray(cuboid["axes"], float).reshape(3, 3).T
-        frame[:3, 3] = np.asarray(cuboid["centre"], float).reshape(3)
-        extents = np.asarray(cuboid["extents"], float).reshape(3)
-        if not (np.all(np.isfinite(frame)) and np.all(extents > 0)):
+        record = box["cuboid"]
+        cuboid = Cuboid(np.asarray(record["centre"], float).reshape(3),
+                        np.asarray(record["axes"], float).reshape(3, 3),
+                        np.asarray(record["extents"], float).reshape(3))
+        extents = cuboid.extents
+        finite = np.all(np.isfinite(cuboid.centre)) and np.all(np.isfinite(cuboid.axes))
+        if not (finite and np.all(extents > 0)):
             raise ValueError("its centre, axes or extents are not finite and positive")
-        item.mesh = trimesh.creation.box(extents=extents, transform=frame)
+        item.mesh = cuboid.mesh()
     except (KeyError, TypeError, ValueError) as exc:
         item.fit_read = False
         item.problems.append(f"{entry.folder / SCENE_NAME}: box {entry.name} is not readable ({_reason(exc)})")

@@ -169,18 +169,22 @@ def test_a_tiny_run_end_to_end(tmp_path, run_cli, monkeypatch):
     assert quick == pytest.approx(round(float(rows[0]["quick_fit_seconds"]), 1), abs=1e-9)
 
 
-def test_the_rooms_are_fitted_with_the_arithmetic_asked_for(tmp_path, run_cli, monkeypatch):
+def test_the_rooms_are_fitted_with_the_arithmetic_asked_for(tmp_path, run_cli, monkeypatch, short_fits):
+    """Every fit of the run, quick and full, moves in the arithmetic asked for: float32 here,
+    where the quick fits' own is "auto" (bfloat16 where the CPU computes it natively)."""
     from jsrte.experiments import scenes
 
     monkeypatch.setattr(scenes, "ROOM_SETTINGS", small_rooms())
+    arithmetic = short_fits("decoder_dtype", quick=True)
     out = tmp_path / "run"
     code, _, err = run_cli(["experiment", "scenes", "--out", str(out), "--rooms", "1", "--first", "3",
                             "--objects", "2,2", "--model", "chair", "--preset", "smoke", "--threads", "1",
-                            "--dtype", "bfloat16", "--no-report"])
+                            "--dtype", "float32", "--no-report"])
     assert code == 0, err
-    assert json.loads((out / "config.json").read_text())["dtype"] == "bfloat16"
-    fits = list((out / "fits/003/objects").glob("*/fit.json"))  # smoke alone would fit in float32
-    assert fits and all(json.loads(f.read_text())["decoder_dtype"] == "bfloat16" for f in fits)
+    assert json.loads((out / "config.json").read_text())["dtype"] == "float32"
+    fits = list((out / "fits/003/objects").glob("*/fit.json"))
+    assert fits and all(json.loads(f.read_text())["decoder_dtype"] == "float32" for f in fits)
+    assert len(arithmetic) > len(fits) and set(arithmetic) == {"float32"}  # the screen's quick fits too
 
 
 def test_bad_input_is_a_one_line_error(tmp_path, run_cli):

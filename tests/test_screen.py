@@ -514,3 +514,16 @@ def test_an_unknown_class_starts_every_full_fit_at_both_scales_unless_a_preset_i
     named = fitting.fit(ply, model="chair,table", preset="fast", hypotheses=2)
     assert named.info["preset"] == "fast" and starts and set(starts) == {"height"}
     assert fitting.fit(ply, model="table", hypotheses=2).info["preset"] == "fast"
+
+
+def test_every_fit_of_an_unknown_class_follows_the_arithmetic_asked_for(tmp_path, short_fits):
+    """``dtype`` reaches the screen's quick fits as well as the full fit; without it the quick
+    fits keep their own ("auto")."""
+    fitting = importlib.import_module("jsrte.fit")
+    arithmetic = short_fits("decoder_dtype", quick=True)
+    ply = write_scan(scan_mesh(held_out("table", 101), rng=np.random.default_rng(4)), tmp_path / "table.ply")
+    fitting.fit(ply, model="chair,table", hypotheses=2, dtype="float32")
+    assert len(arithmetic) >= 3 and set(arithmetic) == {"float32"}  # two quick fits, then the full one
+    arithmetic.clear()
+    fitting.fit(ply, model="chair,table", hypotheses=2, preset="smoke")  # a float32 preset
+    assert "auto" in arithmetic[:-1] and arithmetic[-1] == "float32"

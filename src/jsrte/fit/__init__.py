@@ -68,7 +68,7 @@ def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list
         if len(models) > 1:
             from jsrte.fit.screen import choose_class
 
-            choice = choose_class(sdf_query, models, seed=options.seed)
+            choice = choose_class(sdf_query, models, settings=_screen_settings(options), seed=options.seed)
             loaded, class_choice = choice.model, choice.class_json()
     return fit_recorded(loaded, sdf_query, options, class_choice=class_choice, progress=progress)
 
@@ -161,7 +161,15 @@ def _choose_in_scan(query: str | Path, models: dict, options: FitOptions) -> obj
                                    settings=settings.scan_sdf, units_check=options.units_check,
                                    shape=class_shape(model))
 
-    return choose_in_scan(query, models, segment=segment, seed=options.seed, final_rng=rng)
+    return choose_in_scan(query, models, segment=segment, settings=_screen_settings(options), seed=options.seed,
+                          final_rng=rng)
+
+
+def _screen_settings(options: FitOptions) -> object:
+    """The quick fits' ``jsrte.fit.screen.ScreenSettings``, in the arithmetic ``options`` ask for."""
+    from jsrte.fit.screen import ScreenSettings
+
+    return ScreenSettings().in_arithmetic(options.dtype)
 
 
 def _array(value: tuple | None) -> np.ndarray | None:

@@ -154,6 +154,15 @@ class ScreenSettings:
         return replace(self, fit=replace(self.fit, size_margin=margin),
                        class_fit=replace(self.class_fit, size_margin=margin))
 
+    def in_arithmetic(self, dtype: str | None) -> ScreenSettings:
+        """These settings with the quick fits in the decoder arithmetic ``dtype`` ("auto",
+        "float32", "bfloat16": a fit's ``--dtype``, which every fit of the command follows);
+        unchanged where None (the quick fits' own, "auto")."""
+        if dtype is None:
+            return self
+        return replace(self, fit=replace(self.fit, decoder_dtype=dtype),
+                       class_fit=replace(self.class_fit, decoder_dtype=dtype))
+
 
 @dataclass
 class Screened:

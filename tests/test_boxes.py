@@ -134,9 +134,10 @@ def test_a_scene_reports_a_box_without_fitting_it(box_room, short_fits, monkeypa
     assert box.candidate in scene_module._to_screen(cands, several=True)  # not a box: screened
 
 
-def test_a_single_fit_screens_a_box_last(box_room):
+def test_a_single_fit_screens_a_box_last(box_room, monkeypatch):
     """Choosing one object of a class, a box is screened (and chosen) only after every other
-    candidate; its evidence is recorded in its candidate's summary."""
+    candidate; its evidence is recorded in its candidate's summary, and the same points under
+    another segmentation (another model's) are not tested again."""
     from jsrte.fit.screen import ScreenSettings, boxes, screened_candidates, set_aside
 
     cands = scan_candidates(box_room, rng=np.random.default_rng(0), segment=SCENE_SEGMENT)
@@ -153,3 +154,11 @@ def test_a_single_fit_screens_a_box_last(box_room):
     assert cands.segmentation.candidates[box].summary["box"]["seen_through"] <= BoxSettings().max_seen_through
     assert [kind(k) for k in screened_candidates(cands, 1, set_aside(cands, ScreenSettings()))] == ["table"]
     assert box not in set_aside(cands, ScreenSettings(boxes_last=False))
+
+    made: dict = {}
+    assert boxes(scan_candidates(box_room, rng=np.random.default_rng(0), segment=SCENE_SEGMENT), made) == found
+    asked = []
+    monkeypatch.setattr("jsrte.scans.boxes.candidate_boxes", lambda c, positions, *a: asked.append(positions) or {})
+    again = scan_candidates(box_room, rng=np.random.default_rng(0), segment=SCENE_SEGMENT)
+    assert boxes(again, made) == found and asked == [[]]
+    assert again.segmentation.candidates[box].summary["box"] == cands.segmentation.candidates[box].summary["box"]

@@ -316,8 +316,9 @@ def choose_in_scan(path: object, models: dict[str, DeepSdfModel], *, segment: ob
                 rank = cands.segmentation.candidates[k].summary.get("rank", 0.0)
                 screened.append(screen(models[name], name, queries[key], k, settings, seed, rank))
 
+    box_tests: dict[str, object] = {}
     for name, cands in per_model.items():
-        run(name, cands, screened_candidates(cands, settings.candidates, set_aside(cands, settings)))
+        run(name, cands, screened_candidates(cands, settings.candidates, set_aside(cands, settings, box_tests)))
         if len(models) == 1:
             run(name, cands, cut_necks(cands.segmentation.candidates, screened, settings.neck_score))
     if not screened:
@@ -519,26 +520,32 @@ def thickness(points: np.ndarray) -> float:
     return float(np.ptp(np.percentile(centred @ axis, [5, 95])))
 
 
-def set_aside(cands: object, settings: ScreenSettings) -> set[int]:
+def set_aside(cands: object, settings: ScreenSettings, box_tests: dict[str, object] | None = None) -> set[int]:
     """Positions of the valid candidates of ``cands`` screened and chosen last: slabs
     (:func:`slabs`) and, with ``boxes_last`` and more than one valid candidate, boxes
-    (:func:`boxes`; a lone candidate is chosen whatever it is, and its box test, which may look
-    along every line of sight near it, is spared)."""
+    (:func:`boxes`, with ``box_tests``; a lone candidate is chosen whatever it is, and its box
+    test, which may look along every line of sight near it, is spared)."""
     several = settings.boxes_last and len(cands.valid()) > 1
-    return slabs(cands, settings.slab_m) | (boxes(cands) if several else set())
+    return slabs(cands, settings.slab_m) | (boxes(cands, box_tests) if several else set())
 
 
-def boxes(cands: object) -> set[int]:
+def boxes(cands: object, box_tests: dict[str, object] | None = None) -> set[int]:
     """Positions of the valid candidates of ``cands`` (``ScanCandidates``) that are boxes
     (``jsrte.scans.boxes.candidate_boxes``); each one's evidence goes to its summary (``box``:
-    False where it is none)."""
+    False where it is none). ``box_tests`` (points key -> evidence JSON or False) holds the
+    tests already made on the same points (under another model's segmentation) and takes the new
+    ones."""
     from jsrte.scans.boxes import candidate_boxes
 
+    box_tests = {} if box_tests is None else box_tests
     candidates = cands.segmentation.candidates
-    todo = [k for k in cands.valid() if "box" not in candidates[k].summary]
+    keys = {k: _points_key(cands, k) for k in cands.valid() if "box" not in candidates[k].summary}
+    todo = [k for k, key in keys.items() if key not in box_tests]
     found = candidate_boxes(cands, todo)
     for k in todo:
-        candidates[k].summary["box"] = found[k].to_json() if k in found else False
+        box_tests[keys[k]] = found[k].to_json() if k in found else False
+    for k, key in keys.items():
+        candidates[k].summary["box"] = box_tests[key]
     return {k for k in cands.valid() if candidates[k].summary["box"]}
 
 

@@ -173,11 +173,14 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
 
 
 @pytest.mark.slow
-def test_objects_fitted_at_once_match_those_fitted_in_turn(room_scan):
-    """Two objects in two threads, one PyTorch thread each: the same fits as one after the other."""
+def test_objects_fitted_at_once_match_those_fitted_in_turn(room_scan, short_fits):
+    """Two objects in two threads, one PyTorch thread each: the same fits, quick and full (here
+    shortened), as one after the other."""
     import torch
 
     from jsrte.fit.scene import fit_scene
+
+    short_fits("iterations", quick=True)
 
     before = torch.get_num_threads()
     torch.set_num_threads(1)

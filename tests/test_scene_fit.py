@@ -390,12 +390,14 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
     """A fitted sphere of radius 0.5 m: points on most of it make an object ``ok``; on a fifth of
     it (under COVERED_MIN) a doubtful one; on a tenth (under COVERED_FOUND) no object, the
     coverage in its reason; on a third (under UNSURE_COVERED_MIN) a doubtful one only where
-    another class came within UNSURE_CLASS_MARGIN of its class."""
+    another class came within UNSURE_CLASS_MARGIN of its class; on two fifths a doubtful one only
+    as a class held to more (CLASS_COVERED_MIN: a table)."""
     from types import SimpleNamespace
 
     import trimesh
 
     from jsrte.fit.scene import (
+        CLASS_COVERED_MIN,
         COVERED_FOUND,
         COVERED_MIN,
         UNSURE_CLASS_MARGIN,
@@ -410,11 +412,11 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
     placed = Sim3(0.5, np.eye(3), np.array([0.0, 0.5, 0.0]))
     on = placed.apply(sphere.sample(20_000, seed=2))
     height = (on[:, 1] - 0.5) / 0.5  # -1 (bottom) to 1 (top): area is uniform in height on a sphere
-    models = {"table": SimpleNamespace(meta={"name": "mine"})}
+    models = {name: SimpleNamespace(meta={"name": "mine"}) for name in ("chair", "table")}
 
-    def fitted(top_share: float, class_choice: dict | None = None) -> SceneObject:
+    def fitted(top_share: float, class_choice: dict | None = None, model: str = "chair") -> SceneObject:
         result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
-        obj = SceneObject(0, 0, on[height > 1.0 - 2.0 * top_share], model="table", result=result,
+        obj = SceneObject(0, 0, on[height > 1.0 - 2.0 * top_share], model=model, result=result,
                           class_choice=class_choice)
         _mark_coverage(obj, seed=0)
         _mark_unexplained(obj, models)
@@ -428,13 +430,15 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
     assert part.status == "ok" and part.result.flag == "doubtful"
     scrap = fitted(0.1)
     assert scrap.result.quality["surface_coverage"] < COVERED_FOUND
-    assert scrap.status == "unexplained" and re.search(r"cover \d+% of the table", scrap.reason)
+    assert scrap.status == "unexplained" and re.search(r"cover \d+% of the chair", scrap.reason)
     between = fitted(0.32)  # covered under UNSURE_COVERED_MIN, above COVERED_MIN
     assert COVERED_MIN < between.result.quality["surface_coverage"] < UNSURE_COVERED_MIN
     assert between.status == "ok" and between.result.flag == "ok"  # no class choice: one model
     for margin, flag in [(UNSURE_CLASS_MARGIN / 2, "doubtful"), (UNSURE_CLASS_MARGIN * 2, "ok")]:
-        chosen = fitted(0.32, class_choice={"chosen": "table", "margin": margin})
+        chosen = fitted(0.32, class_choice={"chosen": "chair", "margin": margin})
         assert chosen.status == "ok" and chosen.result.flag == flag
+    assert "chair" not in CLASS_COVERED_MIN and UNSURE_COVERED_MIN < 0.4 < CLASS_COVERED_MIN["table"]
+    assert fitted(0.4).result.flag == "ok" and fitted(0.4, model="table").result.flag == "doubtful"
 
 
 def test_a_table_whose_top_the_scan_did_not_see_is_not_found():

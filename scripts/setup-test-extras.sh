@@ -4,6 +4,8 @@
 # Also Debian's chromium, headless, for the browser tests of `jsrte view` and `jsrte report`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# The dev extras (pytest-xdist runs the suite in two processes), where a .venv predates them.
+.venv/bin/python -c "import xdist" 2>/dev/null || .venv/bin/python -m pip install -q -e ".[dev]"
 if ! command -v chromium >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ]; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null \

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -12,6 +13,9 @@ from jsrte.model.checkpoint import DeepSdfModel
 from jsrte.options import FitOptions
 from jsrte.presets import Preset
 from jsrte.result import FitResult
+
+if TYPE_CHECKING:
+    from jsrte.fit.screen import ScreenSettings
 
 
 def fit(query: str | Path | SdfQuery, *, model: str | Path | DeepSdfModel | list = "chair",
@@ -165,7 +169,7 @@ def _choose_in_scan(query: str | Path, models: dict, options: FitOptions) -> obj
                           final_rng=rng)
 
 
-def _screen_settings(options: FitOptions) -> object:
+def _screen_settings(options: FitOptions) -> ScreenSettings:
     """The quick fits' ``jsrte.fit.screen.ScreenSettings``, in the arithmetic ``options`` ask for."""
     from jsrte.fit.screen import ScreenSettings
 

@@ -149,19 +149,21 @@ class ScreenSettings:
     def held_to_sizes(self, margin: float | None) -> ScreenSettings:
         """These settings with the quick fits held to each class's sizes as the full fits are (a
         preset's ``size_margin``, e.g. ``sized``); unchanged where the preset holds none."""
-        if margin is None:
-            return self
-        return replace(self, fit=replace(self.fit, size_margin=margin),
-                       class_fit=replace(self.class_fit, size_margin=margin))
+        return self._quick_fits(size_margin=margin)
 
     def in_arithmetic(self, dtype: str | None) -> ScreenSettings:
         """These settings with the quick fits in the decoder arithmetic ``dtype`` ("auto",
         "float32", "bfloat16": a fit's ``--dtype``, which every fit of the command follows);
         unchanged where None (the quick fits' own, "auto")."""
-        if dtype is None:
+        return self._quick_fits(decoder_dtype=dtype)
+
+    def _quick_fits(self, **changes: object) -> ScreenSettings:
+        """These settings with ``changes`` (``FitSettings`` fields) applied to both quick fits,
+        ``fit`` and ``class_fit``; unchanged where every change is None."""
+        changes = {name: value for name, value in changes.items() if value is not None}
+        if not changes:
             return self
-        return replace(self, fit=replace(self.fit, decoder_dtype=dtype),
-                       class_fit=replace(self.class_fit, decoder_dtype=dtype))
+        return replace(self, fit=replace(self.fit, **changes), class_fit=replace(self.class_fit, **changes))
 
 
 @dataclass

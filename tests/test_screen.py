@@ -527,3 +527,17 @@ def test_every_fit_of_an_unknown_class_follows_the_arithmetic_asked_for(tmp_path
     arithmetic.clear()
     fitting.fit(ply, model="chair,table", hypotheses=2, preset="smoke")  # a float32 preset
     assert "auto" in arithmetic[:-1] and arithmetic[-1] == "float32"
+
+
+def test_express_screens_with_the_distilled_decoders_too(tmp_path, short_fits):
+    """With ``express`` every fit of an unknown class, the quick fits that choose it as well as
+    the full one, searches with the model's distilled decoder; with ``fast-gn`` none does."""
+    fitting = importlib.import_module("jsrte.fit")
+    distilled = short_fits("distilled_search", quick=True)
+    ply = write_scan(scan_mesh(held_out("table", 101), rng=np.random.default_rng(4)), tmp_path / "table.ply")
+    result = fitting.fit(ply, model="chair,table", hypotheses=2, preset="express", dtype="float32")
+    assert len(distilled) >= 3 and set(distilled) == {True}
+    assert result.info["search_decoder"] == f"{result.info['class']['chosen']}-tiny"
+    distilled.clear()
+    fitting.fit(ply, model="chair,table", hypotheses=2, preset="fast-gn", dtype="float32")
+    assert len(distilled) >= 3 and set(distilled) == {False}

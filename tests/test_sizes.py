@@ -50,10 +50,10 @@ def test_a_fit_held_to_its_class_sizes_stays_within_them():
     assert all(h.init["scale"] <= 1.2 + 1e-6 for h in held.hypotheses)
 
 
-def test_models_lists_each_class_sizes(monkeypatch, capsys):
+def test_models_lists_each_class_sizes_and_its_distilled_decoder(monkeypatch, capsys):
     from cli_runner import run_cli
 
     code, out, err = run_cli(monkeypatch, capsys, "models")
     assert code == 0, err
     line = next(row for row in out.splitlines() if row.startswith("chair"))
-    assert "radius 0.49-0.76 m" in line
+    assert "radius 0.49-0.76 m" in line and "distilled (tiny, 25" in line

@@ -261,11 +261,20 @@ class FitSettings:
     inlier share is kept: bfloat16's coarser products can tip a fit whose hypotheses lie close
     into the wrong one (docs/presets.md)."""
 
+    distilled_search: bool = False
+    """Gauss–Newton: the model's distilled decoder (``jsrte distill``: a network 5–7× cheaper
+    taught the model's SDF over its latent space, so its codes mean the same) moves every
+    hypothesis through the screens, the solve and the Adam stage; the model itself takes the
+    polish, the final losses that pick the winner, the mesh and the quality block (docs/speed.md,
+    "A distilled decoder"). The model must have one (the shipped models do)."""
+
     def __post_init__(self) -> None:
         """Every mode field holds one of its values (a typo is an error here, not a silent default)."""
         for name, values in MODES.items():
             if getattr(self, name) not in values:
                 raise ValueError(f"FitSettings.{name} must be one of {', '.join(values)}, got {getattr(self, name)!r}")
+        if self.distilled_search and self.solver != "gauss-newton":
+            raise ValueError("FitSettings.distilled_search needs the gauss-newton solver")
 
     def without_pruning(self) -> FitSettings:
         """The same settings with every hypothesis run to the end (both prunings off)."""
@@ -324,6 +333,15 @@ take ``fast``'s last stage, 100 Adam steps on 1500 fresh samples each (40 at lr 
 and 20 more on 500 at lr 0.005, and the winner is the lowest loss on 4000 samples: about 0.51 M
 decoder evaluations in the solve (docs/solver.md)."""
 
+EXPRESS = Preset(name="express", scan_sdf=FAST.scan_sdf,
+                 fit=replace(FAST_GAUSS_NEWTON.fit, distilled_search=True, adam_stage_iterations=60,
+                             adam_stage_decay_after=24, refine_iterations=5, polish_iterations=0))
+"""``fast-gn`` with the model's distilled decoder doing the search (``distilled_search``): the
+screens, the Levenberg–Marquardt solve and a shorter Adam stage (60 steps, 24 at lr 0.05) run on
+a network about five times cheaper; the model itself then settles the two survivors (at most 5
+Levenberg–Marquardt iterations on the solve's 3000 samples; no polish), picks the winner on its
+final losses and makes the mesh (docs/speed.md, "A distilled decoder")."""
+
 FAST_SCALES = Preset(name="fast-scales", scan_sdf=FAST.scan_sdf, fit=replace(FAST.fit, init_scale="both"))
 """``fast``, its yaw starts also at the scale of the object's bounding sphere where that differs
 from its height's by more than 10% (24 starts instead of 12 there, each held near its own start
@@ -346,6 +364,7 @@ PRESETS: dict[str, Preset] = {
     "paper": PAPER,
     "fast": FAST,
     "fast-gn": FAST_GAUSS_NEWTON,
+    "express": EXPRESS,
     "fast-scales": FAST_SCALES,
     "sized": SIZED,
     "smoke": SMOKE,

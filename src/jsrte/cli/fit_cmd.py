@@ -184,6 +184,8 @@ def models_command(as_json: bool = typer.Option(False, "--json", help="Print JSO
         h = r["metrics"].get("heldout_fscore_mean")
         sizes = r["sizes_m"]
         sized = "" if sizes is None else f", radius {sizes['smallest']:.2f}-{sizes['largest']:.2f} m"
+        student = r["distilled"]
+        distilled = "" if student is None else f", distilled ({student['architecture']}, {student['size_kb']} KB)"
         typer.echo(f"{r['name']:8s} {r['category'] or '?':6s} {r['shapes']} shapes{sized}, latent {r['latent_size']}, "
                    f"{r['size_kb']} KB, F@5% train {f if f is not None else '-'} held-out "
-                   f"{h if h is not None else '-'}")
+                   f"{h if h is not None else '-'}{distilled}")

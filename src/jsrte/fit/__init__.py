@@ -170,10 +170,11 @@ def _choose_in_scan(query: str | Path, models: dict, options: FitOptions) -> obj
 
 
 def _screen_settings(options: FitOptions) -> ScreenSettings:
-    """The quick fits' ``jsrte.fit.screen.ScreenSettings``, in the arithmetic ``options`` ask for."""
+    """The quick fits' ``jsrte.fit.screen.ScreenSettings``, in the arithmetic ``options`` ask for,
+    searched by the distilled decoders where the preset's full fit is."""
     from jsrte.fit.screen import ScreenSettings
 
-    return ScreenSettings().in_arithmetic(options.dtype)
+    return ScreenSettings().in_arithmetic(options.dtype).searched_as(options.settings().fit)
 
 
 def _array(value: tuple | None) -> np.ndarray | None:

@@ -275,7 +275,7 @@ def screen_yaws(decoder: Decoder, p: torch.Tensor, base: torch.Tensor, problem: 
 def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
           fixed: frozenset[str] = frozenset(), generator: torch.Generator,
           prior: LatentPrior | None = None, progress: bool = False,
-          trace: list[dict[int, float]] | None = None) -> Optimized:
+          trace: list[dict[int, float]] | None = None, finisher: Decoder | None = None) -> Optimized:
     """Minimize every hypothesis's objective by Levenberg–Marquardt, as one batch.
 
     ``settings.iterations`` bounds the iterations (each one decoder pass with its backward over
@@ -286,6 +286,9 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     A hypothesis whose objective or system turns NaN/inf is dropped (``Optimized.failed``);
     if all are, a JsrteError. ``trace``, if given, receives each iteration's objective of every
     hypothesis still in the batch (by initial index), for studying pruning schedules.
+    ``finisher`` (default ``decoder``) takes the refinement after the Adam stage, the polish and
+    the final losses: the model itself where ``decoder`` is its distilled decoder
+    (``FitSettings.distilled_search``).
     """
     start = time.perf_counter()
     batch = new_batch(decoder, inits, settings, fixed=fixed, generator=generator, prior=prior)
@@ -374,15 +377,16 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
     objective = lin.objective
     if len(set(survivors.tolist())) < len(survivors):
         survivors, objective = _best_copies(batch, survivors, objective)
+    finisher = decoder if finisher is None else finisher
     if adam_stage_due(batch, objective, settings):
         if settings.adam_stage_contenders_only:
             survivors, objective = _contenders_only(batch, survivors, objective, pruned, settings.adam_stage_margin)
         count("adam stage", adam_stage(decoder, batch, problem_of, settings))
         if settings.refine_iterations:
-            count("refine", _refine(decoder, batch, problem, whitening, free, settings))
+            count("refine", _refine(finisher, batch, problem, whitening, free, settings))
     if settings.polish_iterations:
-        count("polish", polish(decoder, batch, problem_of, settings))
-    final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty,
+        count("polish", polish(finisher, batch, problem_of, settings))
+    final = _final_losses(finisher, batch, points, sdf, lower, settings, clamp, penalty,
                           (settings.scale_prior, s0), generator)
     count("final losses", len(batch) * min(settings.eval_samples, len(sdf)))
     return Optimized(batch, final, survivors, pruned, iterations, sum(parts.values()), time.perf_counter() - start,

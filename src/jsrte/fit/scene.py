@@ -350,7 +350,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
                                 units_check=options.units_check, shape=shape,
                                 segment=SegmentSettings() if shape is not None else SCENE_SEGMENT)
         found_boxes = {} if boxes is None else candidate_boxes(cands, cands.possible(), boxes)
-    screen = screen.held_to_sizes(settings.fit.size_margin).in_arithmetic(options.dtype)
+    screen = screen.held_to_sizes(settings.fit.size_margin).in_arithmetic(options.dtype).searched_as(settings.fit)
     segmented = cands.segmented
     seg = cands.segmentation
     cloud_points = np.asarray(segmented.cloud.points, float)

@@ -157,6 +157,12 @@ class ScreenSettings:
         unchanged where None (the quick fits' own, "auto")."""
         return self._quick_fits(decoder_dtype=dtype)
 
+    def searched_as(self, settings: FitSettings) -> ScreenSettings:
+        """These settings with the quick fits searched by the model's distilled decoder where the
+        full fit's ``settings`` are (``FitSettings.distilled_search``, ``express``); unchanged
+        elsewhere."""
+        return self._quick_fits(distilled_search=settings.distilled_search or None)
+
     def _quick_fits(self, **changes: object) -> ScreenSettings:
         """These settings with ``changes`` (``FitSettings`` fields) applied to both quick fits,
         ``fit`` and ``class_fit``; unchanged where every change is None."""

@@ -64,16 +64,27 @@ def latent_prior(model: DeepSdfModel, settings: FitSettings) -> LatentPrior | No
     return LatentPrior.of_codes(model.codes.detach().cpu().numpy(), shrinkage=settings.latent_prior_shrinkage)
 
 
+def search_decoder(model: DeepSdfModel, settings: FitSettings) -> DeepSdfModel:
+    """The model whose decoder moves the hypotheses: ``model``'s distilled decoder with
+    ``settings.distilled_search`` (JsrteError if it has none), else ``model``."""
+    if not settings.distilled_search:
+        return model
+    from jsrte.model.registry import distilled_decoder
+
+    return distilled_decoder(model)
+
+
 def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
              fixed: frozenset[str], generator: torch.Generator, prior: LatentPrior | None,
-             progress: bool = False) -> Optimized:
+             progress: bool = False, finisher: Decoder | None = None) -> Optimized:
     """Minimize every hypothesis's objective with ``settings.solver``: Adam (fit.optimize) or
-    Levenberg–Marquardt (fit.gauss_newton)."""
+    Levenberg–Marquardt (fit.gauss_newton; ``finisher``, if given, takes its refinement, polish
+    and final losses)."""
     if settings.solver == "gauss-newton":
         from jsrte.fit.gauss_newton import solve
 
         return solve(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
-                     progress=progress)
+                     progress=progress, finisher=finisher)
     return optimize(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
                     progress=progress)
 
@@ -105,9 +116,11 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     if settings.below_floor_samples and clamp is not None:
         query = with_below_floor_samples(query, settings.below_floor_samples, clamp=clamp,
                                          rng=np.random.default_rng(seed), depth=settings.below_floor_depth)
+    searcher = search_decoder(model, settings)
     with stage("solve"):
-        result = minimize(decoder, query, inits, settings, fixed=fixed, generator=generator,
-                          prior=latent_prior(model, settings), progress=progress)
+        result = minimize(searcher.decoder, query, inits, settings, fixed=fixed, generator=generator,
+                          prior=latent_prior(model, settings), progress=progress,
+                          finisher=None if searcher is model else decoder)
     t_opt = time.perf_counter() - started
     _check_finite(result)
     reports = _reports(result, inits)
@@ -126,7 +139,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
         info={"decoder_evaluations": result.evaluations, "iterations": result.iterations,
               "fixed_parameters": sorted(fixed), "below_floor_samples": len(query.sdf) - n_query,
               "latent_space": settings.latent_space, "solver": settings.solver,
-              "decoder_dtype": _dtype_used(settings, decoder),
+              "decoder_dtype": _dtype_used(settings, decoder), "search_decoder": searcher.name,
               "failed_hypotheses": {str(i): why for i, why in sorted(result.failed.items())},
               "winner_hypothesis": int(result.survivors[winner])},
     )

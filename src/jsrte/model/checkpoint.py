@@ -37,11 +37,14 @@ class DeepSdfModel:
     decoder : Decoder
     codes : (n_shapes, d) float32, latent codes of the training shapes
     meta : dict, JSON-serializable description (see module docstring)
+    distilled : its distilled decoder (``jsrte distill``) once a fit has looked it up
+        (``jsrte.model.registry.distilled_decoder``), else None
     """
 
     decoder: Decoder
     codes: torch.Tensor
     meta: dict[str, Any] = field(default_factory=dict)
+    distilled: DeepSdfModel | None = field(default=None, repr=False, compare=False)
 
     @property
     def name(self) -> str:

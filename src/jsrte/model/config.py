@@ -51,8 +51,9 @@ ARCHITECTURES: dict[str, DecoderConfig] = {
     # CPU default, chosen by measurement on the 2-core machine (docs/models.md).
     "cpu": DecoderConfig(latent_size=64, hidden=256, depth=6, skip_layer=3, dropout=0.0,
                          pe_frequencies=0),
-    # Narrower networks, 3.3x and 5x cheaper to evaluate than "cpu"; their fits lose accuracy
-    # (docs/speed.md, "A smaller decoder"), so no shipped model uses them.
+    # Narrower networks, 3.3x and 5x cheaper to evaluate than "cpu". Trained on their own, their
+    # fits lose accuracy (docs/speed.md, "A smaller decoder"); distilled from a shipped model
+    # (jsrte distill), "tiny" does the search of the express preset.
     "small": DecoderConfig(latent_size=64, hidden=128, depth=6, skip_layer=3, dropout=0.0),
     "tiny": DecoderConfig(latent_size=64, hidden=128, depth=4, skip_layer=2, dropout=0.0),
 }

@@ -8,6 +8,11 @@ from jsrte.errors import JsrteError
 from jsrte.model.checkpoint import DeepSdfModel, file_hash, load_model, read_metadata
 
 PRETRAINED_DIR = Path(__file__).parent / "pretrained"
+DISTILLED_DIR = PRETRAINED_DIR / "distilled"
+"""The shipped models' distilled decoders (``jsrte distill``), each naming its teacher."""
+DISTILLED_SUFFIX = ".distilled.safetensors"
+"""A model file's own distilled decoder lies beside it under this suffix (``model.safetensors``:
+``model.distilled.safetensors``)."""
 
 
 def shipped_models() -> dict[str, Path]:
@@ -45,10 +50,46 @@ def describe_models() -> list[dict]:
     rows = []
     for name, path in shipped_models().items():
         meta = read_metadata(path)
-        sizes = model_sizes(meta | {"name": name, "sha256": file_hash(path)})
+        sha256 = file_hash(path)
+        sizes = model_sizes(meta | {"name": name, "sha256": sha256})
+        student = next((p for p in shipped_distilled() if _teacher_sha256(p) == sha256), None)
         rows.append({"name": name, "category": meta.get("category"), "shapes": meta.get("n_shapes"),
                      "architecture": meta.get("arch"), "latent_size": meta["architecture"]["latent_size"],
                      "size_kb": round(path.stat().st_size / 1024, 1),
                      "sizes_m": None if sizes is None else asdict(sizes),
-                     "metrics": meta.get("metrics", {}), "path": str(path)})
+                     "metrics": meta.get("metrics", {}), "path": str(path),
+                     "distilled": None if student is None else {
+                         "architecture": read_metadata(student).get("arch"),
+                         "size_kb": round(student.stat().st_size / 1024, 1), "path": str(student)}})
     return rows
+
+
+def distilled_decoder(model: DeepSdfModel) -> DeepSdfModel:
+    """The distilled decoder of ``model`` (``jsrte distill``), on the model's device: the one it
+    holds (``model.distilled``), else the file beside the model's own (:data:`DISTILLED_SUFFIX`),
+    else the shipped one whose teacher is ``model`` (the same SHA-256); it is kept in
+    ``model.distilled``. JsrteError if there is none."""
+    from jsrte.model.decoder import decoder_device
+
+    if model.distilled is None:
+        sha256, own = model.meta.get("sha256"), model.meta.get("path")
+        beside = [Path(own).parent / (Path(own).stem + DISTILLED_SUFFIX)] if own else []
+        found = [path for path in beside if path.is_file() and _teacher_sha256(path) == sha256]
+        found += [path for path in shipped_distilled() if _teacher_sha256(path) == sha256]
+        if found:
+            model.distilled = load_model(found[0])
+        else:
+            hint = f"jsrte distill --teacher {own} --out {beside[0]}" if own else "jsrte distill"
+            raise JsrteError(f"model {model.name!r} has no distilled decoder; make one with `{hint}`")
+    model.distilled.decoder.to(decoder_device(model.decoder))
+    return model.distilled
+
+
+def shipped_distilled() -> list[Path]:
+    """The shipped distilled decoders' files."""
+    return sorted(DISTILLED_DIR.glob("*.safetensors"))
+
+
+def _teacher_sha256(path: Path) -> str | None:
+    """The SHA-256 of the model a distilled decoder was taught by (None: not a distilled decoder)."""
+    return (read_metadata(path).get("distilled_from") or {}).get("sha256")

@@ -87,6 +87,22 @@ def test_every_shipped_model_has_its_distilled_decoder():
             sum(p.numel() for p in model.decoder.parameters())
 
 
+def test_a_models_own_distilled_decoder_beside_it_comes_before_the_shipped_one(tmp_path):
+    import shutil
+
+    from jsrte.model.checkpoint import save_model
+
+    copy = tmp_path / "mine.safetensors"
+    shutil.copy(shipped_models()["chair"], copy)
+    own = load_model(DISTILLED_DIR / "chair.safetensors")
+    own.meta.pop("sha256")
+    own.meta.pop("path")
+    own.meta["name"] = "mine-tiny"
+    save_model(own, tmp_path / "mine.distilled.safetensors")
+    assert distilled_decoder(load_model(copy)).name == "mine-tiny"
+    assert distilled_decoder(resolve_model("chair")).name == "chair-tiny"
+
+
 def test_a_model_without_a_distilled_decoder_is_named_with_the_command_that_makes_one(tmp_path):
     import shutil
 

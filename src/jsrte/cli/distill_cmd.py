@@ -50,8 +50,6 @@ def _distill(teacher: str, out: Path, arch: str, steps: int, seconds: float | No
              device: str, progress: bool) -> None:
     """The distillation of :func:`distill`, its arguments checked: the student, its error on
     fresh draws, its file and its loss log."""
-    from dataclasses import replace
-
     import torch
 
     from jsrte.cli.common import resolve_device
@@ -71,7 +69,7 @@ def _distill(teacher: str, out: Path, arch: str, steps: int, seconds: float | No
     target = resolve_device(device)
     student = run_distill(model, ARCHITECTURES[arch], settings, device=target, name=name, progress=progress,
                           log=rows)
-    error = student_error(student, model, replace(settings, codes_per_step=32), device=target)
+    error = student_error(student, model, settings, device=target)
     student.decoder.cpu()
     student.meta["distillation"].update(error)
     save_model(student, out)

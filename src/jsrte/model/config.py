@@ -88,6 +88,9 @@ class TrainSettings:
 
     def lr_factor(self, step: int) -> float:
         """Cosine learning-rate factor at ``step`` (1 at step 0, ``final_lr_fraction`` at the end)."""
-        progress = min(step / max(self.steps, 1), 1.0)
-        f = self.final_lr_fraction
-        return f + (1.0 - f) * 0.5 * (1.0 + math.cos(math.pi * progress))
+        return cosine_factor(min(step / max(self.steps, 1), 1.0), self.final_lr_fraction)
+
+
+def cosine_factor(progress: float, final_fraction: float) -> float:
+    """A cosine schedule's factor at ``progress`` in [0, 1]: 1 at 0, ``final_fraction`` at 1."""
+    return final_fraction + (1.0 - final_fraction) * 0.5 * (1.0 + math.cos(math.pi * progress))

@@ -11,13 +11,13 @@ and minimizes the clamped L1 between the two networks' outputs.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass
 
 import torch
 
 from jsrte.model.checkpoint import DeepSdfModel
+from jsrte.model.config import cosine_factor
 from jsrte.model.decoder import Decoder, DecoderConfig
 from jsrte.model.train import clamped_l1
 
@@ -53,8 +53,8 @@ class DistillSettings:
         return min(max(by_steps, by_time), 1.0)
 
     def lr_at(self, progress: float) -> float:
-        f = self.final_lr_fraction
-        return self.lr * (f + (1.0 - f) * 0.5 * (1.0 + math.cos(math.pi * progress)))
+        """The learning rate at ``progress`` (:meth:`progress`)."""
+        return self.lr * cosine_factor(progress, self.final_lr_fraction)
 
 
 def draw_codes(codes: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:

@@ -52,7 +52,7 @@ def describe_models() -> list[dict]:
         meta = read_metadata(path)
         sha256 = file_hash(path)
         sizes = model_sizes(meta | {"name": name, "sha256": sha256})
-        student = next((p for p in shipped_distilled() if _teacher_sha256(p) == sha256), None)
+        student = shipped_distilled(sha256)
         rows.append({"name": name, "category": meta.get("category"), "shapes": meta.get("n_shapes"),
                      "architecture": meta.get("arch"), "latent_size": meta["architecture"]["latent_size"],
                      "size_kb": round(path.stat().st_size / 1024, 1),
@@ -74,20 +74,20 @@ def distilled_decoder(model: DeepSdfModel) -> DeepSdfModel:
     if model.distilled is None:
         sha256, own = model.meta.get("sha256"), model.meta.get("path")
         beside = [Path(own).parent / (Path(own).stem + DISTILLED_SUFFIX)] if own else []
-        found = [path for path in beside if path.is_file() and _teacher_sha256(path) == sha256]
-        found += [path for path in shipped_distilled() if _teacher_sha256(path) == sha256]
-        if found:
-            model.distilled = load_model(found[0])
-        else:
+        found = next((path for path in beside if path.is_file() and _teacher_sha256(path) == sha256),
+                     None) or shipped_distilled(sha256)
+        if found is None:
             hint = f"jsrte distill --teacher {own} --out {beside[0]}" if own else "jsrte distill"
             raise JsrteError(f"model {model.name!r} has no distilled decoder; make one with `{hint}`")
+        model.distilled = load_model(found)
     model.distilled.decoder.to(decoder_device(model.decoder))
     return model.distilled
 
 
-def shipped_distilled() -> list[Path]:
-    """The shipped distilled decoders' files."""
-    return sorted(DISTILLED_DIR.glob("*.safetensors"))
+def shipped_distilled(sha256: str | None) -> Path | None:
+    """The shipped distilled decoder taught by the model whose file has this SHA-256, if any."""
+    return next((path for path in sorted(DISTILLED_DIR.glob("*.safetensors")) if _teacher_sha256(path) == sha256),
+                None)
 
 
 def _teacher_sha256(path: Path) -> str | None:

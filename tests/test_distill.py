@@ -149,3 +149,21 @@ def test_distill_refuses_an_architecture_it_does_not_know_and_a_file_it_would_ov
     out.write_bytes(b"mine")
     code, _, stderr = run_cli(["distill", "--teacher", "chair", "--out", str(out), "--steps", "1"])
     assert code == 2 and "already exists" in stderr and out.read_bytes() == b"mine"
+
+
+def test_express_scales_recovers_an_object_whose_height_misleads_its_start():
+    """An object 2.5 times taller than its class's mean shape (analytic; the distilled decoder a
+    copy of the model): ``express`` starts at 1/2.5 of its scale by its height and ends far off;
+    ``express-scales`` also starts at its points' scale and recovers it."""
+    from analytic import LShapeDecoder, tall_class_case
+
+    mesh = decode_mesh(LShapeDecoder(), torch.zeros(4), resolution=48).mesh
+    query, truth, model, _, _ = tall_class_case(mesh, factor=2.5)
+    model.distilled = DeepSdfModel(_Offset(model.decoder, 0.0), model.codes, {"name": "lshape-student"})
+    express, scales = (replace(get_preset(name).fit, extract_resolution=32, latent_space="raw",
+                               below_floor_samples=0) for name in ("express", "express-scales"))
+    assert scales == replace(express, init_scale="both")
+    assert abs(fit_query(model, query, express, seed=0).transform.s / truth.s - 1.0) > 0.1
+    result = fit_query(model, query, scales, seed=0)
+    assert result.transform.s == pytest.approx(truth.s, rel=0.03)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 3.0

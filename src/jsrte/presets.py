@@ -348,6 +348,11 @@ from its height's by more than 10% (24 starts instead of 12 there, each held nea
 scale by the scale prior; the same fit elsewhere): tables, sofas and beds vary in proportions
 far more than chairs, and a fit started at the wrong scale rarely recovers (docs/presets.md)."""
 
+EXPRESS_SCALES = Preset(name="express-scales", scan_sdf=FAST.scan_sdf, fit=replace(EXPRESS.fit, init_scale="both"))
+"""``express``, its yaw starts also at the scale of the object's bounding sphere where that
+differs from its height's by more than 10%, as ``fast-scales`` does for ``fast``: for tables,
+sofas and beds (docs/speed.md, "A distilled decoder")."""
+
 SIZED = Preset(name="sized", scan_sdf=FAST.scan_sdf, fit=replace(FAST_SCALES.fit, size_margin=1.2))
 """``fast-scales``, each class held to its own sizes (those of its training shapes, from 1/1.2 of
 the smallest to 1.2 times the largest; ``FitSettings.size_margin``): a table model cannot
@@ -365,6 +370,7 @@ PRESETS: dict[str, Preset] = {
     "fast": FAST,
     "fast-gn": FAST_GAUSS_NEWTON,
     "express": EXPRESS,
+    "express-scales": EXPRESS_SCALES,
     "fast-scales": FAST_SCALES,
     "sized": SIZED,
     "smoke": SMOKE,

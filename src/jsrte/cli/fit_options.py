@@ -42,7 +42,7 @@ DTYPE = typer.Option(None, help="The decoder's arithmetic while the fit moves: a
 FLOAT32_RETRY = typer.Option(
     None, "--float32-retry/--no-float32-retry",
     help="Fit a bfloat16 fit flagged doubtful again in float32 and keep the one with more inliers (default: the "
-         "preset's: on in fast, fast-gn, express, fast-scales and sized; off with --scene; docs/presets.md).")
+         "preset's: on in every preset but paper and smoke; off with --scene; docs/presets.md).")
 HYPOTHESES = typer.Option(None, help="Number of θ starts (default: every 30°, 12).")
 SEED = typer.Option(0, help="Random seed.")
 DEVICE = typer.Option("cpu", help="Torch device: cpu, cuda or cuda:N (where PyTorch sees a GPU).")

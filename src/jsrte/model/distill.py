@@ -184,7 +184,7 @@ def student_error(student: DeepSdfModel, teacher: DeepSdfModel, settings: Distil
                   n_codes: int = 64, seed: int = 1, device: torch.device | str = "cpu") -> dict[str, float]:
     """The mean absolute difference of the two networks' clamped outputs on fresh draws (codes and
     points as in training, another seed): over all points and over those within 0.01 of the
-    teacher's surface."""
+    teacher's surface. Both decoders are moved to ``device``."""
     device = torch.device(device)
     generator = torch.Generator().manual_seed(seed)
     teacher_net, student_net = teacher.decoder.to(device).eval(), student.decoder.to(device).eval()

@@ -441,6 +441,31 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
     assert fitted(0.4).result.flag == "ok" and fitted(0.4, model="table").result.flag == "doubtful"
 
 
+def test_a_scene_object_is_held_to_a_looser_code_bound_than_a_single_fit():
+    """A well-covered fitted sphere whose code lies at 1.0 times the training codes' median
+    Mahalanobis distance is doubtful as a single fit (RULE: 0.9) and ok as a scene object
+    (SCENE_CODE_RATIO_MAX); beyond that bound it is doubtful in a scene too."""
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from jsrte.fit.quality import RULE, flag_of
+    from jsrte.fit.scene import SCENE_CODE_RATIO_MAX, SceneObject, _mark_coverage
+    from jsrte.geometry.sim3 import Sim3
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    placed = Sim3(0.5, np.eye(3), np.array([0.0, 0.5, 0.0]))
+    on = placed.apply(sphere.sample(20_000, seed=2))
+    assert RULE["latent_mahalanobis_ratio_max"] < 1.0 < SCENE_CODE_RATIO_MAX < 1.2
+    for ratio, flag in [(1.0, "ok"), (1.2, "doubtful")]:
+        quality = {"inlier_share": 0.95, "latent_mahalanobis_ratio": ratio}
+        single = flag_of(quality)
+        result = SimpleNamespace(quality=quality, transform=placed, mesh_canonical=sphere, flag=single)
+        obj = SceneObject(0, 0, on, model="sofa", result=result)
+        _mark_coverage(obj, seed=0)
+        assert single == "doubtful" and obj.result.flag == flag
+
+
 def test_a_table_whose_top_the_scan_did_not_see_is_not_found():
     """A fitted sphere of radius 0.5 m seen on its lower 80%: most of its surface is covered, its
     top (the cap in the highest tenth of its height) not. Fitted as a table, it is no object (a

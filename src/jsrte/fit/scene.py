@@ -277,6 +277,16 @@ ones 0.47-0.74. Each bound is the midpoint of its gap: together they caught 5 mo
 fits (0.57 -> 0.81) and flagged none more of the 35 good ones (0.11)."""
 
 
+SCENE_CODE_RATIO_MAX = 1.1
+"""A scene object's fit is doubtful where its code lies further from its class's training codes
+than this many times their median Mahalanobis distance (``latent_mahalanobis_ratio``), in place
+of the single fit's 0.9 (``jsrte.fit.quality.RULE``, chosen on chairs). Sofas and beds fitted in
+rooms end with codes as far out as their training codes' own median and are right: on the tuning
+rooms (100-129 of seed 0) good fits (F@5% >= 0.85) flagged by their code alone had ratios
+0.94-1.03, and the one bad fit (F@5% < 0.7) caught by nothing else 1.18; 1.1, the middle of that
+gap, flagged 3 fewer of the 35 good fits (0.11 -> 0.03) and caught the same 17 of the 21 bad."""
+
+
 UNSURE_COVERED_MIN = 0.35
 UNSURE_CLASS_MARGIN = 0.02
 """An object's fit is doubtful where its candidate's points cover less than
@@ -685,16 +695,19 @@ def _mark_unexplained(obj: SceneObject, models: dict) -> None:
 
 
 def _mark_coverage(obj: SceneObject, seed: int) -> None:
-    """Add the shares of ``obj``'s fitted surface and of its top that its candidate's points cover
-    to its quality block (``jsrte.fit.quality.surface_coverage``, ``top_coverage``); below
-    :data:`COVERED_MIN` of the surface (:data:`CLASS_COVERED_MIN` for its classes) the fit is
-    doubtful, and below :data:`UNSURE_COVERED_MIN` where its class was barely preferred (a screen
-    margin below :data:`UNSURE_CLASS_MARGIN`)."""
-    from jsrte.fit.quality import surface_coverage, top_coverage
+    """Flag ``obj``'s fit by the single fit's rule with a scene's code bound
+    (:data:`SCENE_CODE_RATIO_MAX`), and add the shares of its fitted surface and of its top that
+    its candidate's points cover to its quality block (``jsrte.fit.quality.surface_coverage``,
+    ``top_coverage``); below :data:`COVERED_MIN` of the surface (:data:`CLASS_COVERED_MIN` for its
+    classes) the fit is doubtful, and below :data:`UNSURE_COVERED_MIN` where its class was barely
+    preferred (a screen margin below :data:`UNSURE_CLASS_MARGIN`)."""
+    from jsrte.fit.quality import RULE, flag_of, surface_coverage, top_coverage
 
     r = obj.result
     if r is None:
         return
+    if r.flag is not None:
+        r.flag = flag_of(r.quality, RULE | {"latent_mahalanobis_ratio_max": SCENE_CODE_RATIO_MAX})
     coverage = surface_coverage(r.mesh_canonical, r.transform, obj.points, seed=seed)
     r.quality["surface_coverage"] = coverage
     r.quality["top_coverage"] = top_coverage(r.mesh_canonical, r.transform, obj.points, seed=seed)

@@ -403,7 +403,7 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
         UNSURE_CLASS_MARGIN,
         UNSURE_COVERED_MIN,
         SceneObject,
-        _mark_coverage,
+        _flag_scene_object,
         _mark_unexplained,
     )
     from jsrte.geometry.sim3 import Sim3
@@ -418,7 +418,7 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
         result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
         obj = SceneObject(0, 0, on[height > 1.0 - 2.0 * top_share], model=model, result=result,
                           class_choice=class_choice)
-        _mark_coverage(obj, seed=0)
+        _flag_scene_object(obj, seed=0)
         _mark_unexplained(obj, models)
         return obj
 
@@ -450,7 +450,7 @@ def test_a_scene_object_is_held_to_a_looser_code_bound_than_a_single_fit():
     import trimesh
 
     from jsrte.fit.quality import RULE, flag_of
-    from jsrte.fit.scene import SCENE_CODE_RATIO_MAX, SceneObject, _mark_coverage
+    from jsrte.fit.scene import SCENE_CODE_RATIO_MAX, SceneObject, _flag_scene_object
     from jsrte.geometry.sim3 import Sim3
 
     sphere = trimesh.creation.icosphere(subdivisions=4)
@@ -462,7 +462,7 @@ def test_a_scene_object_is_held_to_a_looser_code_bound_than_a_single_fit():
         single = flag_of(quality)
         result = SimpleNamespace(quality=quality, transform=placed, mesh_canonical=sphere, flag=single)
         obj = SceneObject(0, 0, on, model="sofa", result=result)
-        _mark_coverage(obj, seed=0)
+        _flag_scene_object(obj, seed=0)
         assert single == "doubtful" and obj.result.flag == flag
 
 
@@ -474,7 +474,7 @@ def test_a_table_whose_top_the_scan_did_not_see_is_not_found():
 
     import trimesh
 
-    from jsrte.fit.scene import COVERED_MIN, TOP_SEEN_MIN, SceneObject, _mark_coverage, _mark_unexplained
+    from jsrte.fit.scene import COVERED_MIN, TOP_SEEN_MIN, SceneObject, _flag_scene_object, _mark_unexplained
     from jsrte.geometry.sim3 import Sim3
 
     sphere = trimesh.creation.icosphere(subdivisions=4)
@@ -486,7 +486,7 @@ def test_a_table_whose_top_the_scan_did_not_see_is_not_found():
     def fitted(model: str) -> SceneObject:
         result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
         obj = SceneObject(0, 0, below_top, model=model, result=result)
-        _mark_coverage(obj, seed=0)
+        _flag_scene_object(obj, seed=0)
         _mark_unexplained(obj, models)
         return obj
 
@@ -548,7 +548,7 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
 
     import trimesh
 
-    from jsrte.fit.scene import SceneObject, _fit_another_class, _mark_coverage, _mark_unexplained
+    from jsrte.fit.scene import SceneObject, _fit_another_class, _flag_scene_object, _mark_unexplained
     from jsrte.geometry.sim3 import Sim3
     from jsrte.model.sizes import ClassSizes
     from jsrte.options import FitOptions
@@ -576,7 +576,7 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
                                  info={"class": {"chosen": "table", "scores": scores}})
         obj = SceneObject(0, 0, points, model="table", result=result, choice=SimpleNamespace(query=None),
                           class_choice={"chosen": "table", "scores": scores})
-        _mark_coverage(obj, seed=0)
+        _flag_scene_object(obj, seed=0)
         _mark_unexplained(obj, models)
         assert obj.status == "unexplained" and obj.unexplained_by == "size"
         return obj

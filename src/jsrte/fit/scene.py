@@ -381,7 +381,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
                     bar=f"fitting {len(to_fit)} objects" if progress and to_fit else None, unit="object")
     with _timed(timing, "checks"):
         for obj in objects:
-            _mark_coverage(obj, options.seed)
+            _flag_scene_object(obj, options.seed)
             _mark_unexplained(obj, models)
         _in_threads(lambda obj: _fit_another_class(obj, models, options),
                     [o for o in objects if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
@@ -588,7 +588,7 @@ def _fit_another_class(obj: SceneObject, models: dict, options: FitOptions) -> N
     """Fit ``obj``, unexplained by a check of :data:`ANOTHER_CLASS_AFTER`, with the other class of
     lowest screen score, if that score is at most :data:`PART_EXPLAINED` (and, after the size
     check, that class's sizes widened by :data:`SIZE_MARGIN` hold the first fit's radius), and
-    keep the new fit where it is found (``ok`` after :func:`_mark_coverage` and
+    keep the new fit where it is found (``ok`` after :func:`_flag_scene_object` and
     :func:`_mark_unexplained`); its class record says ``chosen_by``: the check ("size"), with the
     first class and radius. Else the object stays as it was."""
     from jsrte.fit import fit_recorded
@@ -610,7 +610,7 @@ def _fit_another_class(obj: SceneObject, models: dict, options: FitOptions) -> N
         obj.model, obj.status, obj.reason, obj.unexplained_by = name, "ok", "", ""
         obj.result = fit_recorded(models[name], obj.choice.query, options, class_choice=record)
         _refit_escaped(obj, obj.choice.query, models[name], options)
-        _mark_coverage(obj, options.seed)
+        _flag_scene_object(obj, options.seed)
         _mark_unexplained(obj, models)
         if obj.status != "ok":
             obj.model, obj.result, obj.status, obj.reason, obj.unexplained_by = first
@@ -694,7 +694,7 @@ def _mark_unexplained(obj: SceneObject, models: dict) -> None:
         obj.reason = f"no {obj.model} seen: its points cover {top:.0%} of the fitted {obj.model}'s top"
 
 
-def _mark_coverage(obj: SceneObject, seed: int) -> None:
+def _flag_scene_object(obj: SceneObject, seed: int) -> None:
     """Flag ``obj``'s fit by the single fit's rule with a scene's code bound
     (:data:`SCENE_CODE_RATIO_MAX`), and add the shares of its fitted surface and of its top that
     its candidate's points cover to its quality block (``jsrte.fit.quality.surface_coverage``,

@@ -72,12 +72,10 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
     the scene would screen; the seconds its segmentation took."""
     import numpy as np
     import torch
-    from scipy.spatial import cKDTree
 
     from jsrte.experiments.scenes import ROOM_SETTINGS, draw_room
     from jsrte.fit.query import scan_candidates
     from jsrte.fit.scene import SCENE_SEGMENT
-    from jsrte.scans.io import load_scan
     from jsrte.scans.scene import write_room
 
     torch.set_num_threads(1)
@@ -85,18 +83,17 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
         write_room(draw_room(room, seed=seed, settings=ROOM_SETTINGS), room_dir, seed=seed)
     truth = json.loads((room_dir / "scene.json").read_text())
     labels = np.load(room_dir / "labels.npy")
-    scan = np.asarray(load_scan(room_dir / "scan.ply", rng=np.random.default_rng(0)).points)
     started = time.perf_counter()
     cands = scan_candidates(room_dir / "scan.ply", rng=np.random.default_rng(0),
                             segment=replace(SCENE_SEGMENT, **_settings(changes)))
     seconds = time.perf_counter() - started
     segmented = cands.segmented
-    points = np.asarray(segmented.cloud.points, float)
-    nearest = cKDTree(scan)
+    if len(segmented.cloud.points) != len(labels):
+        raise SystemExit(f"{room_dir}: labels.npy has {len(labels)} labels for {len(segmented.cloud.points)} points")
     held = []
     for k in cands.possible():
         index = segmented.index[segmented.segmentation.candidates[k].index]
-        values, counts = np.unique(labels[nearest.query(points[index])[1]], return_counts=True)
+        values, counts = np.unique(labels[index], return_counts=True)
         held.append(dict(zip(values.tolist(), counts.tolist(), strict=True)))
     rows = [{"room": room, "class": entry["class"],
              "outcome": _outcome(entry["index"], int((labels == entry["index"]).sum()), held, share, purity)}

@@ -493,3 +493,28 @@ def test_the_veil_test_finds_mixed_and_flying_pixels_of_a_room(tmp_path, room):
     assert (found & mixed).sum() >= 0.25 * mixed.sum()  # the rest lie within the noise of a surface
     surface = (room.labels >= 0) & ~room.scan.is_outlier
     assert (found & surface).sum() <= 0.01 * surface.sum()  # 0.25%
+
+
+def test_leftover_points_are_clustered_again_as_candidates():
+    """What a scene's fits leave unexplained: a chair, a box 0.6 m from it, a shred of 100 points
+    and a flat mat. Clustered again at the segmentation's radius, the chair and the box are
+    candidates of their own; the shred (fewer than ``shred_points``) and the mat (too flat) are not."""
+    from jsrte.scans.segment import leftover_candidates
+
+    chair = stand_in_chair()
+    side_box = box((0.4, 0.35, 0.5))
+    side_box.apply_translation([chair.bounds[1][0] + 0.8, 0.0, 0.0])
+    shred = box((0.05, 0.05, 0.05))
+    shred.apply_translation([0.0, 0.0, 2.0])
+    mat = box((0.6, 0.01, 0.6))
+    mat.apply_translation([0.0, 0.0, -2.0])
+    meshes = (chair, side_box, shred, mat)
+    pieces = [_surface_points(m, 100 if m is shred else int(6000 * m.area), k) for k, m in enumerate(meshes)]
+    points = np.concatenate(pieces)
+    owner = np.repeat(np.arange(4), [len(p) for p in pieces])
+    found = leftover_candidates(np.arange(len(points)), points, points[:, 1], np.array([0.0, 1.0, 0.0]),
+                                SegmentSettings())
+    held = sorted((int(np.bincount(owner[c.index]).argmax()), len(c.index)) for c in found)
+    assert [k for k, _ in held] == [0, 1]
+    assert held[0][1] > 0.95 * len(pieces[0]) and held[1][1] > 0.95 * len(pieces[1])
+    assert all(c.summary["points"] == len(c.index) and c.rejected == "" for c in found)

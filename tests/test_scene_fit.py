@@ -229,6 +229,12 @@ def test_scene_with_at_is_a_one_line_error(room_scan, tmp_path, monkeypatch, cap
     assert not (tmp_path / "o").exists()
 
 
+def test_leftovers_without_scene_is_a_one_line_error(room_scan, tmp_path, monkeypatch, capsys):
+    code, _, err = run_cli(monkeypatch, capsys, "fit", room_scan, "--leftovers", "--out", tmp_path / "o")
+    assert code != 0 and "--leftovers is for --scene" in err and err.strip().count("\n") == 0
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_room_without_objects_says_what_was_removed(tmp_path, monkeypatch, capsys):
     empty = replace(ROOM, others=(0, 0))
     flat = generate_shape("chair", shape_seed(EVAL_SET_SEED, 100)).mesh
@@ -635,3 +641,49 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     _drop_second_fits([b, a, c, d], models, seed=0)
     assert [o.status for o in (a, c, d)] == ["ok", "ok", "ok"] and inside >= SECOND_FIT_SHARE
     assert b.status == "unexplained" and b.unexplained_by == "second fit" and "object 1 (sofa)" in b.reason
+
+
+def test_points_a_found_objects_fit_leaves_unexplained_are_fitted_as_an_object_of_their_own(monkeypatch):
+    """A ball of radius 0.8 m fitted as a found object whose candidate also holds a box 0.3 m
+    beside it (one segment, as a chair pushed against a bed): the ball's fit explains the ball's
+    points, not the box's; those are clustered again into a candidate of their own
+    (``leftover_of`` the first) and fitted as a new object, numbered after the others."""
+    from types import SimpleNamespace
+
+    import torch
+    import trimesh
+
+    from jsrte.fit import scene as scene_module
+    from jsrte.fit.scene import SceneObject, _fit_leftovers
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.options import FitOptions
+    from jsrte.scans.segment import Candidate
+
+    class Ball(torch.nn.Module):
+        def forward(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+            return x.norm(dim=-1) - 0.8
+
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.8)
+    ball.apply_translation([0.0, 0.8, 0.0])
+    side_box = trimesh.creation.box([0.4, 0.5, 0.4])
+    side_box.apply_translation([1.3, 0.25, 0.0])
+    on_ball = trimesh.sample.sample_surface(ball, int(6000 * ball.area), seed=0)[0]
+    on_box = trimesh.sample.sample_surface(side_box, int(6000 * side_box.area), seed=1)[0]
+    points = np.concatenate([on_ball, on_box])
+    segmented = SimpleNamespace(cloud=SimpleNamespace(points=points), index=np.arange(len(points)),
+                                up=np.array([0.0, 1.0, 0.0]), heights=lambda: points[:, 1])
+    cands = SimpleNamespace(segmented=segmented, segmentation=SimpleNamespace(
+        candidates=[Candidate(index=np.arange(len(points)))]))
+    fitted = SimpleNamespace(quality={"inlier_share": 0.8}, transform=Sim3(1.0, np.eye(3), np.array([0.0, 0.8, 0.0])),
+                             latent=np.zeros(4), flag="ok")
+    found = SceneObject(0, 0, points, model="ball", result=fitted)
+    found.index = 4  # numbered apart from its candidate
+    fits = []
+    monkeypatch.setattr(scene_module, "_fit_object", lambda obj, *args: fits.append(obj))
+    new = _fit_leftovers([found], cands, {"ball": SimpleNamespace(decoder=Ball())}, FitOptions(), None, None,
+                         workers=1)
+    assert [o.index for o in new] == [5] and fits == new  # numbered after the objects given
+    leftover = cands.segmentation.candidates[new[0].candidate]
+    assert new[0].candidate == 1 and new[0].leftover_of == 4 and new[0].to_json()["leftover_of"] == 4
+    from_box = leftover.index >= len(on_ball)
+    assert from_box.all() and from_box.sum() > 0.95 * len(on_box)

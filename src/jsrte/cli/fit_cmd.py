@@ -27,7 +27,7 @@ def fit_command(
     line_of_sight: bool = opt.LINE_OF_SIGHT, free_axis: bool = opt.FREE_AXIS, at: str = opt.AT,
     hypotheses: int = opt.HYPOTHESES, seed: int = opt.SEED, device: str = opt.DEVICE,
     units_check: bool = opt.UNITS_CHECK, dtype: str = opt.DTYPE,
-    float32_retry: bool = opt.FLOAT32_RETRY,
+    float32_retry: bool = opt.FLOAT32_RETRY, leftovers: bool = opt.LEFTOVERS,
     threads: int = typer.Option(0, help="CPU threads (0: all cores); with --scene, objects fitted at once."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
@@ -45,9 +45,11 @@ def fit_command(
     check_threads(threads)
     if not scan.exists():
         raise JsrteError("no such file", scan)
+    if leftovers and not scene:
+        raise JsrteError("--leftovers is for --scene (a single fit keeps one object)")
     if scene:
         _fit_scene(scan, out, model=model or "auto", options=options, overwrite=overwrite, progress=progress,
-                   threads=threads)
+                   threads=threads, leftovers=leftovers)
         return
     check_out_folder(out, marker=RESULT_NAME, overwrite=overwrite)
     set_threads(threads)
@@ -87,7 +89,7 @@ def prepare_command(
 
 
 def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite: bool, progress: bool,
-               threads: int) -> None:
+               threads: int, leftovers: bool = False) -> None:
     """``jsrte fit --scene``: every object of the scan, one line each, then the files."""
     from jsrte.atomic import output_dir
     from jsrte.fit.scene import PHASES, fit_scene
@@ -97,7 +99,8 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
         raise JsrteError("--scene fits every object; --at picks one (give one or the other)")
     check_out_folder(out, marker=SCENE_NAME, overwrite=overwrite)
     set_threads(threads)
-    scene = fit_scene(scan, model=model, options=options, progress=progress, workers=threads or os.cpu_count() or 1)
+    scene = fit_scene(scan, model=model, options=options, progress=progress, workers=threads or os.cpu_count() or 1,
+                      leftovers=leftovers)
     with output_dir(out, overwrite=overwrite, marker=SCENE_NAME) as folder:
         write_scene_outputs(scene, folder, extra={"input": str(scan)})
     for obj in scene.objects:

@@ -68,6 +68,8 @@ class ScenesConfig:
     model: str = "auto"
     objects: tuple[int, int] = OBJECTS
     box_share: float = BOX_SHARE
+    leftovers: bool = False
+    """Also fit what the found objects' fits leave unexplained (``jsrte.fit.scene.fit_scene``)."""
 
     @property
     def indices(self) -> list[int]:
@@ -148,7 +150,8 @@ def run_room(room: int, config: ScenesConfig, out: Path) -> list[dict]:
     truth = true_objects(drawn)
     started = time.perf_counter()
     try:
-        scene = fit_scene(scan, model=config.model, preset=config.preset, seed=config.seed, dtype=config.dtype)
+        scene = fit_scene(scan, model=config.model, preset=config.preset, seed=config.seed, dtype=config.dtype,
+                          leftovers=config.leftovers)
     except JsrteError as exc:  # no object left: every true object is missed
         scene, failure = None, str(exc)
     seconds = time.perf_counter() - started

@@ -73,6 +73,8 @@ class SceneObject:
     unexplained_by : which check left it unexplained: "share", "size", "coverage", "top" or
         "second fit" ("" when it is not)
     box : the evidence that it is a box, its cuboid in it (None: not a box)
+    leftover_of : the found object whose fit left its points unexplained (:func:`_fit_leftovers`;
+        None: a candidate of the segmentation)
     """
 
     index: int
@@ -86,6 +88,7 @@ class SceneObject:
     choice: Choice | str | None = field(default=None, repr=False)
     unexplained_by: str = ""
     box: BoxEvidence | None = field(default=None, repr=False)
+    leftover_of: int | None = None
 
     @property
     def centre(self) -> list[float]:
@@ -105,6 +108,8 @@ class SceneObject:
             entry["class_margin"] = self.class_choice.get("margin")
         if self.reason:
             entry["reason"] = self.reason
+        if self.leftover_of is not None:
+            entry["leftover_of"] = self.leftover_of
         r = self.result
         if r is not None:
             mesh = r.mesh
@@ -319,7 +324,7 @@ classes' tops (a bed's headboard, a sofa's back) are often unseen on right fits.
 
 def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions | None = None,
               screen: ScreenSettings = SCENE_SCREEN, progress: bool = False, workers: int = 1,
-              boxes: BoxSettings | None = SCENE_BOXES, **changes: object) -> SceneResult:
+              boxes: BoxSettings | None = SCENE_BOXES, leftovers: bool = False, **changes: object) -> SceneResult:
     """Fit every object standing on the floor of the scan at ``path``.
 
     Parameters
@@ -336,6 +341,9 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         thread (the fits' PyTorch and NumPy work runs outside Python's interpreter lock); 1: one
         after the other, with PyTorch's threads as they are set
     boxes : what makes a candidate a box (None: nothing is, every candidate is fitted)
+    leftovers : also fit, as objects of their own, the points that the found objects' fits leave
+        unexplained (:func:`_fit_leftovers`): an object segmented with another (a chair pushed
+        against a bed) is found so
     changes : options by name, applied over ``options``
 
     Raises ``JsrteError`` when the scan holds no object (saying what segmentation removed).
@@ -386,6 +394,11 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         _in_threads(lambda obj: _fit_another_class(obj, models, options),
                     [o for o in objects if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
         _drop_second_fits(objects, models, options.seed)
+    if leftovers:
+        with _timed(timing, "leftovers"):
+            leftovers = _fit_leftovers(objects, cands, models, options, screen, boxes, workers)
+            _drop_second_fits(objects + leftovers, models, options.seed, newcomers=leftovers)
+            objects += leftovers
     timing["total"] = round(time.perf_counter() - started, 2)
     skipped = [{"candidate": k, "points": len(c.index), "reason": c.rejected}
                for k, c in enumerate(seg.candidates) if c.rejected]
@@ -396,11 +409,12 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
                        covered=_covered_json(seg.candidates, covered), timing=timing)
 
 
-PHASES = ("segmentation", "quick fits", "full fits", "checks")
+PHASES = ("segmentation", "quick fits", "full fits", "checks", "leftovers")
 """The phases of :func:`fit_scene` whose wall seconds ``SceneResult.timing`` (scene.json's
 ``timing_s``) records: models loaded and the scan segmented; every candidate fitted quickly by
 every model and the splits judged; the full fits (contending classes and refits included); the
-coverage, size and second-fit checks with the other-class fits they call for."""
+coverage, size and second-fit checks with the other-class fits they call for; the leftovers'
+clustering, quick fits, full fits and checks (:func:`_fit_leftovers`)."""
 
 
 @contextmanager
@@ -617,20 +631,80 @@ def _fit_another_class(obj: SceneObject, models: dict, options: FitOptions) -> N
         return
 
 
-def _drop_second_fits(objects: list[SceneObject], models: dict, seed: int) -> None:
+LEFTOVER_DISTANCE_M = 0.05
+"""A found object's point farther than this from its fitted surface is left over."""
+
+
+def _fit_leftovers(objects: list[SceneObject], cands: object, models: dict, options: FitOptions,
+                   screen: ScreenSettings, boxes: BoxSettings | None, workers: int) -> list[SceneObject]:
+    """The points of the found (``ok``) ``objects`` farther than :data:`LEFTOVER_DISTANCE_M`
+    from their fitted surfaces, clustered again (``jsrte.scans.segment.leftover_candidates``):
+    each cluster that may be an object becomes a candidate, a box where it is one, else
+    screened, fitted and checked as the others. A chair pushed against a bed is segmented with
+    it, and the bed's fit explains the bed's points, not the chair's. The new objects, numbered
+    after ``objects``, each ``leftover_of`` the object most of its points came from."""
+    from jsrte.fit.quality import fitted_sdf
+    from jsrte.scans.segment import leftover_candidates
+
+    segmented, seg = cands.segmented, cands.segmentation
+    left, origin = [], []
+    for obj in (o for o in objects if o.status == "ok" and o.result is not None):
+        r = obj.result
+        far = np.abs(fitted_sdf(models[obj.model].decoder, r.latent, r.transform, obj.points)) > LEFTOVER_DISTANCE_M
+        left.append(seg.candidates[obj.candidate].index[far])
+        origin.append(np.full(int(far.sum()), obj.index))
+    if not left or not sum(map(len, left)):
+        return []
+    index, origin = np.concatenate(left), np.concatenate(origin)
+    cloud_points = np.asarray(segmented.cloud.points, float)
+    new, came_from = [], {}
+    for c in leftover_candidates(index, cloud_points[segmented.index], segmented.heights(), segmented.up,
+                                 SCENE_SEGMENT):
+        values, counts = np.unique(origin[np.isin(index, c.index)], return_counts=True)
+        came_from[len(seg.candidates)] = int(values[np.argmax(counts)])
+        new.append(len(seg.candidates))
+        seg.candidates.append(c)
+    found_boxes = {} if boxes is None else candidate_boxes(cands, new, boxes)
+    to_screen = [k for k in new if k not in found_boxes] if len(models) > 1 else []
+    screened = dict(_in_threads(lambda k: _screen_candidate(k, cands, models, options, screen), to_screen, workers))
+    first = max(o.index for o in objects) + 1
+    extra = [SceneObject(first + i, k, cloud_points[segmented.index[seg.candidates[k].index]],
+                         choice=screened.get(k), box=found_boxes.get(k),
+                         status=BOX_CLASS if k in found_boxes else "ok", leftover_of=came_from[k])
+             for i, k in enumerate(new)]
+    to_fit = [o for o in extra if o.box is None]
+    _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), to_fit, workers)
+    for obj in extra:
+        _flag_scene_object(obj, options.seed)
+        _mark_unexplained(obj, models)
+    _in_threads(lambda obj: _fit_another_class(obj, models, options),
+                [o for o in extra if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
+    return extra
+
+
+def _drop_second_fits(objects: list[SceneObject], models: dict, seed: int,
+                      newcomers: list[SceneObject] | None = None) -> None:
     """Of two found objects whose fitted shapes share at least :data:`SECOND_FIT_SHARE` of a
     shape's volume (:func:`_shared_volume`; the pairs sharing most first), keep the one whose fit
     lies on more of the points of both (:func:`_points_on_fit`); the other becomes
-    ``unexplained`` (a second fit of the one kept)."""
+    ``unexplained`` (a second fit of the one kept). With ``newcomers`` (among ``objects``), only
+    the pairs that hold one are weighed, and of a newcomer and an object found before, the
+    newcomer goes."""
     from itertools import combinations
 
+    new = None if newcomers is None else {id(o) for o in newcomers}
     found = [o for o in objects if o.status == "ok"]
-    pairs = [(_shared_volume(a, b, models, seed), a, b) for a, b in combinations(found, 2)]
+    pairs = [(_shared_volume(a, b, models, seed), a, b) for a, b in combinations(found, 2)
+             if new is None or id(a) in new or id(b) in new]
     for share, a, b in sorted(pairs, key=lambda pair: -pair[0]):
         if share < SECOND_FIT_SHARE or a.status != "ok" or b.status != "ok":
             continue
         both = np.concatenate([a.points, b.points])
-        second, kept = (a, b) if _points_on_fit(a, both, models) < _points_on_fit(b, both, models) else (b, a)
+        if new is not None and (id(a) in new) != (id(b) in new):
+            second, kept = (a, b) if id(a) in new else (b, a)
+        else:
+            on_a, on_b = _points_on_fit(a, both, models), _points_on_fit(b, both, models)
+            second, kept = (a, b) if on_a < on_b else (b, a)
         second.status, second.unexplained_by = "unexplained", "second fit"
         second.reason = (f"a second fit of object {kept.index} ({kept.model}): "
                          f"the two fitted shapes share {share:.0%} of one's volume")

@@ -457,6 +457,10 @@ class SegmentedScan:
         points = np.asarray(self.cloud.points)
         return points if self.mixed is None else points[~self.mixed]
 
+    def heights(self) -> np.ndarray:
+        """(m,) heights (m) above the floor of the points of ``index`` (:func:`heights_above_floor`)."""
+        return heights_above_floor(self.cloud.points[self.index], self.floor, self.up)
+
     def prepare(self, candidate: int | None = None, *, keep: np.ndarray | None = None) -> PreparedScan:
         """The candidate at position ``candidate`` of the segmentation (default: the chosen one)
         ready for the fit: :func:`prepare_object` on its points (only those of ``keep`` (p,)
@@ -466,6 +470,14 @@ class SegmentedScan:
         if keep is not None:
             chosen = chosen[keep]
         return prepare_object(self, self.index[chosen])
+
+
+def heights_above_floor(points: np.ndarray, floor: Floor | None, up: np.ndarray) -> np.ndarray:
+    """(n,) heights (m) of ``points`` (n, 3) above ``floor``; without one, along ``up`` (3,) over the lowest."""
+    if floor is not None:
+        return floor.height(points)
+    heights = np.asarray(points, dtype=np.float64) @ up
+    return heights - heights.min()
 
 
 @timed_stage("floor and cleaning")
@@ -498,9 +510,7 @@ def segment_scan(
         index = index[~mixed[index]]
         n_mixed = n_above - len(index)
     _require(index, settings, cloud.path, "above the floor")
-    heights = floor.height(points[index]) if floor is not None else points[index] @ up_axis
-    if floor is None:
-        heights = heights - heights.min()
+    heights = heights_above_floor(points[index], floor, up_axis)
     if not settings.units_check:  # sizes in other units than metres: no size is implausible
         segment = replace(segment, min_height_m=0.0, min_width_m=0.0, max_height_m=np.inf, max_width_m=np.inf)
     try:

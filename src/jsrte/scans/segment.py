@@ -771,6 +771,20 @@ def _candidate(index: np.ndarray, points: np.ndarray, heights: np.ndarray, up: n
     return Candidate(index=index, score=score, rejected=rejected, summary=summary)
 
 
+def leftover_candidates(index: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                        settings: SegmentSettings) -> list[Candidate]:
+    """The points ``index`` (m,) (into ``points`` (n, 3), ``heights`` (n,) above the floor, ``up``
+    (3,)) clustered again as :func:`segment_objects` clusters (DBSCAN at the radius it uses for
+    ``points``): each cluster of at least ``shred_points`` that may be an object, as a candidate
+    (no class score). For the points a scene's fits left unexplained (``jsrte.fit.scene``)."""
+    eps = settings.cluster_eps_factor * _spacing(points)
+    labels = _dbscan(points[index], eps, settings.cluster_min_points)
+    clusters = [index[labels == k] for k in range(labels.max(initial=-1) + 1)]
+    described = [_candidate(c, points, heights, up, None, settings) for c in clusters
+                 if len(c) >= settings.shred_points]
+    return [c for c in described if not c.rejected]
+
+
 def _choose(candidates: list[Candidate], points: np.ndarray, at: np.ndarray | None, size_weight: float
             ) -> tuple[int | None, str]:
     """Position of the object among ``candidates`` that were not split (a split's whole holds

@@ -45,8 +45,8 @@ FLOAT32_RETRY = typer.Option(
          "preset's: on in every preset but paper and smoke; off with --scene; docs/presets.md).")
 LEFTOVERS = typer.Option(
     False, "--leftovers/--no-leftovers",
-    help="With --scene: also fit, as objects of their own, the points the found objects' fits leave "
-         "unexplained (a chair segmented with the bed it touches; docs/clutter.md). Slower.")
+    help="Whole scenes (fit --scene): also fit, as objects of their own, the points the found objects' fits "
+         "leave unexplained (a chair segmented with the bed it touches; docs/clutter.md). Slower.")
 HYPOTHESES = typer.Option(None, help="Number of θ starts (default: every 30°, 12).")
 SEED = typer.Option(0, help="Random seed.")
 DEVICE = typer.Option("cpu", help="Torch device: cpu, cuda or cuda:N (where PyTorch sees a GPU).")

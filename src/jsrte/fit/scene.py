@@ -396,9 +396,9 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         _drop_second_fits(objects, models, options.seed)
     if leftovers:
         with _timed(timing, "leftovers"):
-            leftovers = _fit_leftovers(objects, cands, models, options, screen, boxes, workers)
-            _drop_second_fits(objects + leftovers, models, options.seed, newcomers=leftovers)
-            objects += leftovers
+            extra = _fit_leftovers(objects, cands, models, options, screen, boxes, workers)
+            _drop_second_fits(objects + extra, models, options.seed, newcomers=extra)
+            objects += extra
     timing["total"] = round(time.perf_counter() - started, 2)
     skipped = [{"candidate": k, "points": len(c.index), "reason": c.rejected}
                for k, c in enumerate(seg.candidates) if c.rejected]
@@ -643,27 +643,12 @@ def _fit_leftovers(objects: list[SceneObject], cands: object, models: dict, opti
     screened, fitted and checked as the others. A chair pushed against a bed is segmented with
     it, and the bed's fit explains the bed's points, not the chair's. The new objects, numbered
     after ``objects``, each ``leftover_of`` the object most of its points came from."""
-    from jsrte.fit.quality import fitted_sdf
-    from jsrte.scans.segment import leftover_candidates
-
     segmented, seg = cands.segmented, cands.segmentation
-    left, origin = [], []
-    for obj in (o for o in objects if o.status == "ok" and o.result is not None):
-        r = obj.result
-        far = np.abs(fitted_sdf(models[obj.model].decoder, r.latent, r.transform, obj.points)) > LEFTOVER_DISTANCE_M
-        left.append(seg.candidates[obj.candidate].index[far])
-        origin.append(np.full(int(far.sum()), obj.index))
-    if not left or not sum(map(len, left)):
+    came_from = _add_leftover_candidates(objects, cands, models)
+    if not came_from:
         return []
-    index, origin = np.concatenate(left), np.concatenate(origin)
+    new = list(came_from)
     cloud_points = np.asarray(segmented.cloud.points, float)
-    new, came_from = [], {}
-    for c in leftover_candidates(index, cloud_points[segmented.index], segmented.heights(), segmented.up,
-                                 SCENE_SEGMENT):
-        values, counts = np.unique(origin[np.isin(index, c.index)], return_counts=True)
-        came_from[len(seg.candidates)] = int(values[np.argmax(counts)])
-        new.append(len(seg.candidates))
-        seg.candidates.append(c)
     found_boxes = {} if boxes is None else candidate_boxes(cands, new, boxes)
     to_screen = [k for k in new if k not in found_boxes] if len(models) > 1 else []
     screened = dict(_in_threads(lambda k: _screen_candidate(k, cands, models, options, screen), to_screen, workers))
@@ -680,6 +665,32 @@ def _fit_leftovers(objects: list[SceneObject], cands: object, models: dict, opti
     _in_threads(lambda obj: _fit_another_class(obj, models, options),
                 [o for o in extra if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
     return extra
+
+
+def _add_leftover_candidates(objects: list[SceneObject], cands: object, models: dict) -> dict[int, int]:
+    """Append to ``cands``' candidates the clusters of the points of the found ``objects``
+    farther than :data:`LEFTOVER_DISTANCE_M` from their fitted surfaces; each new candidate's
+    position -> the index of the object most of its points came from."""
+    from jsrte.fit.quality import fitted_sdf
+    from jsrte.scans.segment import leftover_candidates
+
+    segmented, candidates = cands.segmented, cands.segmentation.candidates
+    left, origin = [], []
+    for obj in (o for o in objects if o.status == "ok" and o.result is not None):
+        r = obj.result
+        far = np.abs(fitted_sdf(models[obj.model].decoder, r.latent, r.transform, obj.points)) > LEFTOVER_DISTANCE_M
+        left.append(candidates[obj.candidate].index[far])
+        origin.append(np.full(int(far.sum()), obj.index))
+    if not sum(map(len, left)):
+        return {}
+    index, origin = np.concatenate(left), np.concatenate(origin)
+    points = np.asarray(segmented.cloud.points, float)[segmented.index]
+    came_from = {}
+    for c in leftover_candidates(index, points, segmented.heights(), segmented.up, SCENE_SEGMENT):
+        values, counts = np.unique(origin[np.isin(index, c.index)], return_counts=True)
+        came_from[len(candidates)] = int(values[np.argmax(counts)])
+        candidates.append(c)
+    return came_from
 
 
 def _drop_second_fits(objects: list[SceneObject], models: dict, seed: int,

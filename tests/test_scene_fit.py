@@ -67,8 +67,8 @@ def test_scene_fits_every_object_near_its_truth(room_scan, tmp_path, monkeypatch
     assert len(colours) == 2 and (out / "overlay.png").is_file()
     assert text.count("\nobject ") + text.startswith("object ") == 2 and "2 object(s) fitted" in text
     timing = record["timing_s"]  # where the time went: every phase, within the whole
-    assert list(timing) == [*PHASES, "total"] and min(timing.values()) >= 0.0
-    assert timing["full fits"] > 0.0 and sum(timing[p] for p in PHASES) <= timing["total"] + 0.05
+    assert list(timing) == [*(p for p in PHASES if p != "leftovers"), "total"] and min(timing.values()) >= 0.0
+    assert timing["full fits"] > 0.0 and sum(timing.get(p, 0.0) for p in PHASES) <= timing["total"] + 0.05
     assert f"full fits {timing['full fits']:.1f} s" in text
 
 
@@ -641,6 +641,10 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     _drop_second_fits([b, a, c, d], models, seed=0)
     assert [o.status for o in (a, c, d)] == ["ok", "ok", "ok"] and inside >= SECOND_FIT_SHARE
     assert b.status == "unexplained" and b.unexplained_by == "second fit" and "object 1 (sofa)" in b.reason
+    # a newcomer (an object of the leftovers) goes whichever lies on more: A here, found after B
+    b.status, b.unexplained_by, b.reason = "ok", "", ""
+    _drop_second_fits([b, a, c, d], models, seed=0, newcomers=[a])
+    assert a.status == "unexplained" and "object 0 (chair)" in a.reason and b.status == c.status == "ok"
 
 
 def test_points_a_found_objects_fit_leaves_unexplained_are_fitted_as_an_object_of_their_own(monkeypatch):

@@ -27,7 +27,8 @@ from pathlib import Path
 PARTS = ("yaw screening", "retrieval", "starts", "translation search", "code scoring", "survivors", "adam stage",
          "refine", "polish", "final losses")
 """The parts of a Levenberg–Marquardt solve whose decoder evaluations are reported apart."""
-FLAG_MEASURES = ("inlier_share", "loss_margin_rel", "free_space_violation", "latent_mahalanobis_ratio")
+FLAG_MEASURES = ("inlier_share", "loss_margin_rel", "free_space_violation", "latent_mahalanobis_ratio",
+                 "surface_coverage")
 """The quality measures the flag reads (jsrte.fit.quality.RULE), one column each."""
 
 

@@ -25,7 +25,7 @@ from jsrte.fit.quality import RULE, flag_of
 
 BAD, GOOD = 0.7, 0.85
 """F@5% below BAD: a fit the flag should catch; at least GOOD: a fit it should leave alone."""
-MEASURES = ("inlier_share", "loss_margin_rel", "free_space_violation", "latent_mahalanobis_ratio")
+MEASURES = ("inlier_share", "loss_margin_rel", "free_space_violation", "latent_mahalanobis_ratio", "surface_coverage")
 
 
 def read_fits(path: Path) -> list[dict]:
@@ -69,17 +69,18 @@ def search(fits: list[dict]) -> list[tuple[dict, dict]]:
     """Rules on a grid that meet both aims on ``fits``, best (most bad fits caught, fewest good
     flagged, then the loosest thresholds) first."""
     found = []
-    for inliers, margin, violation, code in itertools.product(
+    for inliers, margin, violation, code, coverage in itertools.product(
             [x / 100 for x in range(0, 96, 5)], [0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3], [0.01, 0.02, 0.05, 1.0],
-            [0.8, 0.9, 1.0, 1.1, 1.2, 1.5, 2.0, 1e9]):
+            [0.8, 0.9, 1.0, 1.1, 1.2, 1.5, 2.0, 1e9], [0.0, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45]):
         rule = {"inlier_share_min": inliers, "loss_margin_min": margin, "free_space_violation_max": violation,
-                "latent_mahalanobis_ratio_max": code}
+                "latent_mahalanobis_ratio_max": code, "surface_coverage_min": coverage}
         r = rates(fits, rule)
         if (r["bad_caught"] or 0) >= 0.8 and (r["good_flagged"] or 0) <= 0.1:
             found.append((rule, r))
     return sorted(found, key=lambda x: (-(x[1]["bad_caught"] or 0), x[1]["good_flagged"] or 0,
                                         x[0]["inlier_share_min"], x[0]["loss_margin_min"],
-                                        -x[0]["free_space_violation_max"], -x[0]["latent_mahalanobis_ratio_max"]))
+                                        -x[0]["free_space_violation_max"], -x[0]["latent_mahalanobis_ratio_max"],
+                                        x[0]["surface_coverage_min"]))
 
 
 def main() -> None:

@@ -73,6 +73,7 @@ def test_a_recovered_shape_is_ok_and_its_block_is_finite_json(fitted):
     assert q["mean_abs_sdf_rel"] < 0.01
     assert q["free_space_violation"] < 0.01
     assert q["scale_m"] == pytest.approx(TRUTH.s, rel=0.03)
+    assert q["surface_coverage"] > 0.9  # the query's points lie all over the shape
     doc = json.loads(json.dumps(fitted.to_json(), allow_nan=False))
     assert doc["flag"] == "ok"
     numbers = [v for k, v in doc["quality"].items() if k not in ("latent_norm_ratio", "latent_mahalanobis_ratio",
@@ -92,6 +93,7 @@ def test_the_same_fit_against_an_object_elsewhere_is_doubtful(lshape, fitted, qu
     q = assess(lshape.decoder, fitted, surface=elsewhere, points=query.points, sdf=query.sdf)
     assert q["inlier_share"] < 0.4
     assert q["mean_abs_sdf_rel"] > 0.03
+    assert q["surface_coverage"] < 0.4  # 0.97 where the points are
     assert flag_of(q) == "doubtful"
 
 
@@ -153,6 +155,17 @@ def test_an_ambiguous_pose_is_doubtful_even_when_the_points_fit():
     assert flag_of(fits_well | {"loss_margin_rel": None}) == "ok"  # every surviving start agreed
     assert flag_of(fits_well | {"loss_margin_rel": 2 * RULE["loss_margin_min"]}) == "ok"
     assert flag_of(fits_well | {"loss_margin_rel": RULE["loss_margin_min"] / 2}) == "doubtful"
+
+
+def test_a_shape_its_points_cover_little_of_is_doubtful_even_when_they_lie_on_it():
+    """A table fitted by the chair model lies on the table's points but is mostly guessed: the
+    points cover little of the fitted surface."""
+    fits_well = {"inlier_share": 0.95, "free_space_violation": 0.0, "loss_margin_rel": None}
+    assert flag_of(fits_well | {"surface_coverage": 2 * RULE["surface_coverage_min"]}) == "ok"
+    assert flag_of(fits_well | {"surface_coverage": RULE["surface_coverage_min"] / 2}) == "doubtful"
+    assert flag_of(fits_well | {"surface_coverage": None}) == "ok"  # no mesh: nothing to cover
+    lenient = {k: v for k, v in RULE.items() if k != "surface_coverage_min"}
+    assert flag_of(fits_well | {"surface_coverage": 0.01}, lenient) == "ok"
 
 
 def test_code_distance_is_relative_to_the_training_codes():

@@ -168,7 +168,8 @@ def _quality_line(flag: str, quality: dict) -> str:
     return (f"flag {flag}: " + number("inlier_share", "inliers") + ", "
             + number("free_space_violation", "free-space violation") + ", "
             + number("loss_margin_rel", "loss margin") + ", "
-            + number("latent_mahalanobis_ratio", "code distance") + " (docs/confidence.md)")
+            + number("latent_mahalanobis_ratio", "code distance") + ", "
+            + number("surface_coverage", "surface covered") + " (docs/confidence.md)")
 
 
 @app.command("models")

@@ -50,11 +50,12 @@ VOLUME_SAMPLES = 20_000
 """Points drawn in a fitted shape's cube to measure the share of its volume inside another."""
 
 RULE = {"inlier_share_min": 0.3, "loss_margin_min": 0.12, "free_space_violation_max": 0.05,
-        "latent_mahalanobis_ratio_max": 0.9}
+        "latent_mahalanobis_ratio_max": 0.9, "surface_coverage_min": 0.25}
 """The flag's thresholds: "doubtful" when the inlier share is below ``inlier_share_min``, or
 another pose's loss is within ``loss_margin_min`` (relative) of the winner's, or the free-space
 violation is above ``free_space_violation_max``, or the code lies further from the training
-codes than ``latent_mahalanobis_ratio_max`` times their median (chosen on a tuning set:
+codes than ``latent_mahalanobis_ratio_max`` times their median, or the object's points cover
+less than ``surface_coverage_min`` of the fitted surface (chosen on a tuning set:
 docs/confidence.md)."""
 
 
@@ -92,9 +93,11 @@ def assess(decoder: Decoder, result: FitResult, *, surface: np.ndarray, points: 
     out: dict[str, Any] = {"scale_m": s}
     if result.latent is None:
         return out
-    surface = _subset(np.asarray(surface, float), rng)
+    seen = np.asarray(surface, float)
+    surface = _subset(seen, rng)
     distance = np.abs(fitted_sdf(decoder, result.latent, result.transform, surface))
     out.update(_point_measures(distance, s))
+    out["surface_coverage"] = surface_coverage(result.mesh_canonical, result.transform, seen, seed=seed)
     free = np.asarray(points, float)[np.asarray(sdf) >= FREE_SPACE_MIN_M]
     free = _subset(free, rng)
     if len(free):
@@ -264,6 +267,9 @@ def flag_of(quality: dict[str, Any], rule: dict[str, float] = RULE) -> str:
     code = quality.get("latent_mahalanobis_ratio")
     if code is not None and code > rule["latent_mahalanobis_ratio_max"]:
         return "doubtful"
+    coverage = quality.get("surface_coverage")
+    if coverage is not None and coverage < rule.get("surface_coverage_min", 0.0):
+        return "doubtful"
     return "ok"
 
 
@@ -279,8 +285,8 @@ MEASURES = {
     "loss_margin_rel": "(best loss at another pose - winner's loss) / winner's loss",
     "latent_norm_ratio": "|z| / median |z| of the training codes",
     "latent_mahalanobis_ratio": "Mahalanobis distance of z / median one of the training codes",
-    "surface_coverage": f"objects of a scene: share of the fitted surface within {COVERAGE_FRACTION} s "
-                        "of the object's points",
+    "surface_coverage": f"share of the fitted surface within {COVERAGE_FRACTION} s of the object's points "
+                        "(None without a mesh)",
     "top_coverage": f"objects of a scene: the same share of the fitted surface's top (its highest "
                     f"{TOP_BAND:.0%} of height)",
 }

@@ -388,11 +388,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), to_fit, workers,
                     bar=f"fitting {len(to_fit)} objects" if progress and to_fit else None, unit="object")
     with _timed(timing, "checks"):
-        for obj in objects:
-            _flag_scene_object(obj, options.seed)
-            _mark_unexplained(obj, models)
-        _in_threads(lambda obj: _fit_another_class(obj, models, options),
-                    [o for o in objects if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
+        _check_objects(objects, models, options, workers)
         _drop_second_fits(objects, models, options.seed)
     if leftovers:
         with _timed(timing, "leftovers"):
@@ -569,6 +565,17 @@ def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptio
         obj.status, obj.reason, obj.result = "failed", str(exc), None
 
 
+def _check_objects(objects: list[SceneObject], models: dict, options: FitOptions, workers: int) -> None:
+    """Flag every fitted object of ``objects`` (:func:`_flag_scene_object`), mark those no check
+    finds (:func:`_mark_unexplained`), and fit with another class those a check of
+    :data:`ANOTHER_CLASS_AFTER` left unexplained (:func:`_fit_another_class`)."""
+    for obj in objects:
+        _flag_scene_object(obj, options.seed)
+        _mark_unexplained(obj, models)
+    _in_threads(lambda obj: _fit_another_class(obj, models, options),
+                [o for o in objects if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
+
+
 def _refit_escaped(obj: SceneObject, query: SdfQuery, model: object, options: FitOptions) -> None:
     """Where ``obj``'s fit lies on fewer than :data:`EXPLAINED_SHARE` of its points, fit it again
     with :data:`ESCAPE_PRESET` (each class held to its sizes as ``options``' preset holds it) and
@@ -659,11 +666,7 @@ def _fit_leftovers(objects: list[SceneObject], cands: object, models: dict, opti
              for i, k in enumerate(new)]
     to_fit = [o for o in extra if o.box is None]
     _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), to_fit, workers)
-    for obj in extra:
-        _flag_scene_object(obj, options.seed)
-        _mark_unexplained(obj, models)
-    _in_threads(lambda obj: _fit_another_class(obj, models, options),
-                [o for o in extra if o.unexplained_by in ANOTHER_CLASS_AFTER], workers)
+    _check_objects(extra, models, options, workers)
     return extra
 
 
@@ -791,11 +794,11 @@ def _flag_scene_object(obj: SceneObject, seed: int) -> None:
     r = obj.result
     if r is None:
         return
-    if r.flag is not None:
-        r.flag = flag_of(r.quality, RULE | {"latent_mahalanobis_ratio_max": SCENE_CODE_RATIO_MAX})
     coverage = surface_coverage(r.mesh_canonical, r.transform, obj.points, seed=seed)
     r.quality["surface_coverage"] = coverage
     r.quality["top_coverage"] = top_coverage(r.mesh_canonical, r.transform, obj.points, seed=seed)
+    if r.flag is not None:
+        r.flag = flag_of(r.quality, RULE | {"latent_mahalanobis_ratio_max": SCENE_CODE_RATIO_MAX})
     margin = (obj.class_choice or {}).get("margin")
     unsure = margin is not None and margin < UNSURE_CLASS_MARGIN
     covered_min = CLASS_COVERED_MIN.get(str(obj.model), COVERED_MIN)

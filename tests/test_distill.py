@@ -137,9 +137,40 @@ def test_express_searches_with_the_distilled_decoder_and_finishes_with_the_model
     assert alone.transform.s > truth.s * 1.03
 
 
-def test_the_distilled_search_needs_the_second_order_solver():
-    with pytest.raises(ValueError, match="gauss-newton"):
-        replace(get_preset("fast").fit, distilled_search=True)
+def test_fast_distilled_moves_the_starts_by_the_distilled_decoder_and_the_model_settles_the_survivors():
+    """Adam: the student (its surface 0.03 inside the model's; alone, the fit ends more than 3%
+    too large) moves the 12 starts through 130 steps, each pruning keeping those the model
+    explains best, and the model takes the two survivors' last 30 steps and the final losses:
+    the scale comes back, and the evaluations split so."""
+    teacher = DeepSdfModel(WideningLShapeDecoder(), torch.zeros(1, 3),
+                           {"name": "widening", "canonical_height": 1.5, "canonical_radius": 0.95})
+    teacher.distilled = DeepSdfModel(_Offset(teacher.decoder, 0.03), teacher.codes, {"name": "widening-student"})
+    mesh = decode_mesh(teacher.decoder, torch.tensor(TRUE_CODE, dtype=torch.float32), resolution=64).mesh
+    truth, up = tilted_truth(theta=-2.0)
+    query = make_query(mesh, truth, up, np.random.default_rng(6))
+    settings = replace(get_preset("fast-distilled").fit, extract_resolution=32, decoder_dtype="float32")
+    assert settings == replace(get_preset("fast").fit, distilled_search=True, distilled_iterations=130,
+                               decoder_dtype="float32", extract_resolution=32)
+    result = fit_query(teacher, query, settings, seed=0)
+    assert result.info["search_decoder"] == "widening-student"
+    assert result.transform.s == pytest.approx(truth.s, rel=0.02)
+    assert rotation_angle_deg(result.transform.R, truth.R) < 3.0
+    n, judged = settings.samples_per_iteration, (12 + 4) * settings.judge_samples
+    parts = result.info["decoder_evaluations_by_part"]
+    assert parts["distilled"] == (12 * 20 + 4 * 40 + 2 * 70) * n
+    assert parts["model"] == result.info["decoder_evaluations"] - parts["distilled"] > 2 * 30 * n + judged
+    alone = fit_query(DeepSdfModel(teacher.distilled.decoder, teacher.codes, dict(teacher.meta)), query,
+                      replace(settings, distilled_search=False), seed=0)
+    assert alone.transform.s > truth.s * 1.03
+
+
+def test_only_express_screens_candidates_with_the_distilled_decoder():
+    """The quick fits follow the full fit's distilled search only where ``distilled_screen`` says so."""
+    from jsrte.fit.screen import ScreenSettings
+
+    assert ScreenSettings().searched_as(get_preset("express-scales").fit).fit.distilled_search
+    assert not ScreenSettings().searched_as(get_preset("fast-scales-distilled").fit).fit.distilled_search
+    assert not ScreenSettings().searched_as(get_preset("fast").fit).class_fit.distilled_search
 
 
 def test_distill_refuses_an_architecture_it_does_not_know_and_a_file_it_would_overwrite(tmp_path, run_cli):

@@ -262,19 +262,31 @@ class FitSettings:
     into the wrong one (docs/presets.md)."""
 
     distilled_search: bool = False
-    """Gauss–Newton: the model's distilled decoder (``jsrte distill``: a network 5–7× cheaper
-    taught the model's SDF over its latent space, so its codes mean the same) moves every
-    hypothesis through the screens, the solve and the Adam stage; the model itself takes the
-    polish, the final losses that pick the winner, the mesh and the quality block (docs/speed.md,
-    "A distilled decoder"). The model must have one (the shipped models do)."""
+    """The model's distilled decoder (``jsrte distill``: a network 4-5× cheaper taught the model's
+    SDF over its latent space, so its codes mean the same) moves the hypotheses; the model itself
+    takes the final losses that pick the winner, the mesh and the quality block (docs/speed.md,
+    "A distilled decoder"). Gauss–Newton: the distilled decoder takes the screens, the solve and
+    the Adam stage, the model the refinement and the polish. Adam: the distilled decoder takes
+    the first ``distilled_iterations``, the model the rest. The model must have one (the shipped
+    models do)."""
+    distilled_screen: bool = False
+    """The quick fits that choose among candidates and classes (``jsrte.fit.screen``) searched by
+    the distilled decoder too (``express``); False: by the model, whatever the full fit's search
+    (with the Adam search, distilled quick fits chose a wrong candidate on a tuning bed)."""
+    judge_samples: int = 2000
+    """Adam with ``distilled_search``: each pruning keeps the hypotheses of lowest loss by the
+    model itself on this many fixed samples (forward passes only), not by the distilled
+    decoder's running loss."""
+    distilled_iterations: int | None = None
+    """Adam with ``distilled_search``: the iterations the distilled decoder moves the hypotheses
+    before the model takes the survivors over, their Adam moments kept (None: up to the last
+    pruning)."""
 
     def __post_init__(self) -> None:
         """Every mode field holds one of its values (a typo is an error here, not a silent default)."""
         for name, values in MODES.items():
             if getattr(self, name) not in values:
                 raise ValueError(f"FitSettings.{name} must be one of {', '.join(values)}, got {getattr(self, name)!r}")
-        if self.distilled_search and self.solver != "gauss-newton":
-            raise ValueError("FitSettings.distilled_search needs the gauss-newton solver")
 
     def without_pruning(self) -> FitSettings:
         """The same settings with every hypothesis run to the end (both prunings off)."""
@@ -334,8 +346,9 @@ and 20 more on 500 at lr 0.005, and the winner is the lowest loss on 4000 sample
 decoder evaluations in the solve (docs/solver.md)."""
 
 EXPRESS = Preset(name="express", scan_sdf=FAST.scan_sdf,
-                 fit=replace(FAST_GAUSS_NEWTON.fit, distilled_search=True, adam_stage_iterations=60,
-                             adam_stage_decay_after=24, refine_iterations=5, polish_iterations=0))
+                 fit=replace(FAST_GAUSS_NEWTON.fit, distilled_search=True, distilled_screen=True,
+                             adam_stage_iterations=60, adam_stage_decay_after=24, refine_iterations=5,
+                             polish_iterations=0))
 """``fast-gn`` with the model's distilled decoder doing the search (``distilled_search``): the
 screens, the Levenberg–Marquardt solve and a shorter Adam stage (60 steps, 24 at lr 0.05) run on
 a network about five times cheaper; the model itself then settles the two survivors (at most 5
@@ -347,6 +360,17 @@ FAST_SCALES = Preset(name="fast-scales", scan_sdf=FAST.scan_sdf, fit=replace(FAS
 from its height's by more than 10% (24 starts instead of 12 there, each held near its own start
 scale by the scale prior; the same fit elsewhere): tables, sofas and beds vary in proportions
 far more than chairs, and a fit started at the wrong scale rarely recovers (docs/presets.md)."""
+
+FAST_DISTILLED = Preset(name="fast-distilled", scan_sdf=FAST.scan_sdf,
+                        fit=replace(FAST.fit, distilled_search=True, distilled_iterations=130))
+"""``fast`` with the model's distilled decoder moving the hypotheses through their first 130 Adam
+steps, each pruning keeping those the model itself explains best; the model takes the two
+survivors' last 30 steps, picks the winner and makes the mesh. The quick fits that choose among
+candidates stay the model's (docs/speed.md, "A distilled decoder")."""
+
+FAST_SCALES_DISTILLED = Preset(name="fast-scales-distilled", scan_sdf=FAST.scan_sdf,
+                               fit=replace(FAST_DISTILLED.fit, init_scale="both"))
+"""``fast-scales`` searched as ``fast-distilled``."""
 
 EXPRESS_SCALES = Preset(name="express-scales", scan_sdf=FAST.scan_sdf, fit=replace(EXPRESS.fit, init_scale="both"))
 """``express``, its yaw starts also at the scale of the object's bounding sphere where that
@@ -371,6 +395,8 @@ PRESETS: dict[str, Preset] = {
     "fast-gn": FAST_GAUSS_NEWTON,
     "express": EXPRESS,
     "express-scales": EXPRESS_SCALES,
+    "fast-distilled": FAST_DISTILLED,
+    "fast-scales-distilled": FAST_SCALES_DISTILLED,
     "fast-scales": FAST_SCALES,
     "sized": SIZED,
     "smoke": SMOKE,

@@ -50,7 +50,7 @@ from jsrte.fit.optimize import (
     Optimized,
     SampleDrawer,
     SdfQuery,
-    _final_losses,
+    _fixed_sample_losses,
     latent_penalty,
     loss_clamp,
     new_batch,
@@ -386,8 +386,8 @@ def solve(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSet
             count("refine", _refine(finisher, batch, problem, whitening, free, settings))
     if settings.polish_iterations:
         count("polish", polish(finisher, batch, problem_of, settings))
-    final = _final_losses(finisher, batch, points, sdf, lower, settings, clamp, penalty,
-                          (settings.scale_prior, s0), generator)
+    final = _fixed_sample_losses(finisher, batch, points, sdf, lower, settings.eval_samples, clamp, penalty,
+                                 (settings.scale_prior, s0), generator).cpu().numpy()
     count("final losses", len(batch) * min(settings.eval_samples, len(sdf)))
     return Optimized(batch, final, survivors, pruned, iterations, sum(parts.values()), time.perf_counter() - start,
                      failed=failed, evaluation_parts=parts)

@@ -35,8 +35,8 @@ class Optimized:
     failed: dict[int, str] = field(default_factory=dict)
     """Hypotheses (by initial index) dropped because their objective turned NaN or infinite, and why."""
     evaluation_parts: dict[str, int] = field(default_factory=dict)
-    """``evaluations`` split by the part of the solve that spent them (Levenberg–Marquardt only;
-    empty for Adam)."""
+    """``evaluations`` split by the part of the solve that spent them (Levenberg–Marquardt; Adam
+    with a ``finisher``: "distilled" and "model"; else empty)."""
 
 
 def new_batch(decoder: Decoder, inits: list[Init], settings: FitSettings, *, fixed: frozenset[str],
@@ -113,9 +113,14 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
 
 def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
              fixed: frozenset[str] = frozenset(), generator: torch.Generator,
-             prior: LatentPrior | None = None, progress: bool = False) -> Optimized:
+             prior: LatentPrior | None = None, progress: bool = False,
+             finisher: Decoder | None = None) -> Optimized:
     """Run Adam on all hypotheses as one batch; prune to ``prune_keep`` after ``prune_after``
     (and to ``prune_again_keep`` after ``prune_again_after``).
+
+    ``finisher`` (the model, where ``decoder`` is its distilled decoder): it takes the hypotheses
+    over from :func:`handover_iteration` on, their Adam moments kept, and computes the final
+    losses; ``evaluation_parts`` then splits the evaluations between the two.
 
     With a ``prior`` the whitened code is optimized and its penalty is λ s0 ‖w‖² (s0 the
     median initial scale: the data term is in scan units, so the balance does not depend on
@@ -144,10 +149,21 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     sampler = SampleDrawer(query.sdf, near_share=settings.near_sample_share, clamp=clamp, generator=generator)
     recent = torch.zeros(len(inits), dtype=torch.float64, device=device)  # running loss, kept on the device
     evaluations = 0
+    parts = {"distilled": 0, "model": 0}
     stages = pruning_stages(settings)
+    handover = handover_iteration(settings) if finisher is not None else None
+    active = decoder
     for it in tqdm(range(settings.iterations), desc="fitting", disable=not progress):
+        if it == handover:
+            active = finisher
         if it in stages and len(batch) > stages[it]:
-            keep = torch.argsort(recent.cpu())[: stages[it]]
+            ranking = recent
+            if finisher is not None:  # the model judges what its distilled decoder moved
+                ranking = _fixed_sample_losses(finisher, batch, points, sdf, lower, settings.judge_samples, clamp,
+                                               penalty, scale_prior, generator)
+                judged = len(batch) * min(settings.judge_samples, len(sdf))
+                evaluations, parts["model"] = evaluations + judged, parts["model"] + judged
+            keep = torch.argsort(ranking.cpu())[: stages[it]]
             for i in range(len(batch)):
                 if i not in keep.tolist():
                     pruned[int(survivors[i])] = float(recent[i])
@@ -157,7 +173,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         optimizer.lr = learning_rate(settings, it)
         idx = sampler.draw(_sample_pool(query, settings, it), settings.samples_per_iteration,
                            enriched=it >= settings.near_sample_from).to(device)
-        losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
+        losses = hypothesis_losses(active, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
                                    lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior,
                                    bfloat16=bfloat16)
         optimizer.zero_grad()
@@ -167,10 +183,23 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         current = losses.detach().double()
         recent = 0.8 * recent + 0.2 * current if it else current
         evaluations += len(batch) * len(idx)
-    final = _final_losses(decoder, batch, points, sdf, lower, settings, clamp, penalty, scale_prior, generator)
+        parts["model" if active is finisher else "distilled"] += len(batch) * len(idx)
+    final = _fixed_sample_losses(finisher or decoder, batch, points, sdf, lower, settings.eval_samples, clamp,
+                                 penalty, scale_prior, generator).cpu().numpy()
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
+    parts["model"] += len(batch) * min(settings.eval_samples, len(sdf))
     return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
-                     time.perf_counter() - start)
+                     time.perf_counter() - start, evaluation_parts=parts if finisher is not None else {})
+
+
+def handover_iteration(settings: FitSettings) -> int:
+    """The iteration from which the model takes Adam's hypotheses over from its distilled decoder
+    (``FitSettings.distilled_search``): ``distilled_iterations``, else the last pruning's (the
+    survivors settled by the model alone), else the first."""
+    if settings.distilled_iterations is not None:
+        return settings.distilled_iterations
+    stages = pruning_stages(settings)
+    return max(stages) if stages else 0
 
 
 class SampleDrawer:
@@ -225,12 +254,14 @@ def _adam(batch: HypothesisBatch, lr: float) -> Adam:
     return Adam([p for p in batch.parameters() if p.requires_grad], lr)
 
 
-def _final_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
-                  lower: torch.Tensor | None, settings: FitSettings, clamp: float | None, penalty: float,
-                  scale_prior: tuple[float, float], generator: torch.Generator) -> np.ndarray:
-    n = min(settings.eval_samples, len(sdf))
+def _fixed_sample_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
+                         lower: torch.Tensor | None, n: int, clamp: float | None, penalty: float,
+                         scale_prior: tuple[float, float], generator: torch.Generator) -> torch.Tensor:
+    """(H,) float64 objectives of every hypothesis by ``decoder`` (forward passes only, float32) on
+    ``n`` samples of the query drawn once: the same samples for all, so the losses compare."""
+    n = min(n, len(sdf))
     idx = torch.randperm(len(sdf), generator=generator)[:n].to(sdf.device)
     with torch.no_grad():
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
                                    lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior)
-    return losses.double().cpu().numpy()
+    return losses.double()

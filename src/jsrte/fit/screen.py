@@ -159,9 +159,9 @@ class ScreenSettings:
 
     def searched_as(self, settings: FitSettings) -> ScreenSettings:
         """These settings with the quick fits searched by the model's distilled decoder where the
-        full fit's ``settings`` are (``FitSettings.distilled_search``, ``express``); unchanged
+        full fit's ``settings`` say so (``FitSettings.distilled_screen``, ``express``); unchanged
         elsewhere."""
-        return self._quick_fits(distilled_search=settings.distilled_search or None)
+        return self._quick_fits(distilled_search=(settings.distilled_search and settings.distilled_screen) or None)
 
     def _quick_fits(self, **changes: object) -> ScreenSettings:
         """These settings with ``changes`` (``FitSettings`` fields) applied to both quick fits,

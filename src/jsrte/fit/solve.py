@@ -77,7 +77,8 @@ def search_decoder(model: DeepSdfModel, settings: FitSettings) -> DeepSdfModel:
 def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: FitSettings, *,
              fixed: frozenset[str], generator: torch.Generator, prior: LatentPrior | None,
              progress: bool = False, finisher: Decoder | None = None) -> Optimized:
-    """Minimize every hypothesis's objective with ``settings.solver``: Adam (fit.optimize) or
+    """Minimize every hypothesis's objective with ``settings.solver``: Adam (fit.optimize;
+    ``finisher``, if given, takes the survivors of the last pruning and the final losses) or
     Levenberg–Marquardt (fit.gauss_newton; ``finisher``, if given, takes its refinement, polish
     and final losses)."""
     if settings.solver == "gauss-newton":
@@ -86,7 +87,7 @@ def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         return solve(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
                      progress=progress, finisher=finisher)
     return optimize(decoder, query, inits, settings, fixed=fixed, generator=generator, prior=prior,
-                    progress=progress)
+                    progress=progress, finisher=finisher)
 
 
 def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,

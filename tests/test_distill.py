@@ -115,16 +115,23 @@ def test_a_model_without_a_distilled_decoder_is_named_with_the_command_that_make
         distilled_decoder(model)
 
 
-def test_express_searches_with_the_distilled_decoder_and_finishes_with_the_model():
-    """The student's surface lies 0.03 inside the model's, so a fit by the student alone ends
-    more than 3% too large; the model's own Levenberg–Marquardt iterations and final losses bring
-    the scale back, and the mesh is the model's at the fitted code."""
+def _widening_case() -> tuple[DeepSdfModel, object, object]:
+    """A widening L-shape model whose student's surface lies 0.03 inside its own, the true
+    similarity and the query of its shape at the true code so placed."""
     teacher = DeepSdfModel(WideningLShapeDecoder(), torch.zeros(1, 3),
                            {"name": "widening", "canonical_height": 1.5, "canonical_radius": 0.95})
     teacher.distilled = DeepSdfModel(_Offset(teacher.decoder, 0.03), teacher.codes, {"name": "widening-student"})
     mesh = decode_mesh(teacher.decoder, torch.tensor(TRUE_CODE, dtype=torch.float32), resolution=64).mesh
     truth, up = tilted_truth(theta=-2.0)
     query = make_query(mesh, truth, up, np.random.default_rng(6))
+    return teacher, truth, query
+
+
+def test_express_searches_with_the_distilled_decoder_and_finishes_with_the_model():
+    """The student's surface lies 0.03 inside the model's, so a fit by the student alone ends
+    more than 3% too large; the model's own Levenberg–Marquardt iterations and final losses bring
+    the scale back, and the mesh is the model's at the fitted code."""
+    teacher, truth, query = _widening_case()
     settings = replace(get_preset("express").fit, extract_resolution=32)
     result = fit_query(teacher, query, settings, seed=0)
     assert result.info["search_decoder"] == "widening-student"
@@ -142,12 +149,7 @@ def test_fast_distilled_moves_the_starts_by_the_distilled_decoder_and_the_model_
     too large) moves the 12 starts through 130 steps, each pruning keeping those the model
     explains best, and the model takes the two survivors' last 30 steps and the final losses:
     the scale comes back, and the evaluations split so."""
-    teacher = DeepSdfModel(WideningLShapeDecoder(), torch.zeros(1, 3),
-                           {"name": "widening", "canonical_height": 1.5, "canonical_radius": 0.95})
-    teacher.distilled = DeepSdfModel(_Offset(teacher.decoder, 0.03), teacher.codes, {"name": "widening-student"})
-    mesh = decode_mesh(teacher.decoder, torch.tensor(TRUE_CODE, dtype=torch.float32), resolution=64).mesh
-    truth, up = tilted_truth(theta=-2.0)
-    query = make_query(mesh, truth, up, np.random.default_rng(6))
+    teacher, truth, query = _widening_case()
     settings = replace(get_preset("fast-distilled").fit, extract_resolution=32, decoder_dtype="float32")
     assert settings == replace(get_preset("fast").fit, distilled_search=True, distilled_iterations=130,
                                decoder_dtype="float32", extract_resolution=32)

@@ -366,7 +366,7 @@ FAST_DISTILLED = Preset(name="fast-distilled", scan_sdf=FAST.scan_sdf,
 """``fast`` with the model's distilled decoder moving the hypotheses through their first 130 Adam
 steps, each pruning keeping those the model itself explains best; the model takes the two
 survivors' last 30 steps, picks the winner and makes the mesh. The quick fits that choose among
-candidates stay the model's (docs/speed.md, "A distilled decoder")."""
+candidates stay the model's (docs/speed.md, "Adam searched by the distilled decoder")."""
 
 FAST_SCALES_DISTILLED = Preset(name="fast-scales-distilled", scan_sdf=FAST.scan_sdf,
                                fit=replace(FAST_DISTILLED.fit, init_scale="both"))

@@ -691,3 +691,68 @@ def test_points_a_found_objects_fit_leaves_unexplained_are_fitted_as_an_object_o
     assert new[0].candidate == 1 and new[0].leftover_of == 4 and new[0].to_json()["leftover_of"] == 4
     from_box = leftover.index >= len(on_ball)
     assert from_box.all() and from_box.sum() > 0.95 * len(on_box)
+
+
+def test_a_table_whose_top_was_not_seen_is_fitted_in_full_with_the_close_classes_and_the_far_better_one_kept(
+        monkeypatch):
+    """Points on a sphere of radius 0.5 m, fitted as a "table" whose top the scan did not see.
+    Every model's decoder is the unit sphere's analytic SDF, so a fit's screen score is its
+    sphere's distance to the points: the sofa's full fit (radius 0.5) lies on them, the bed's
+    (0.52) 2 cm off, the rejected table's (0.54) 4 cm off. The sofa scores far below the table
+    and is kept, its class record saying why and every compared score; the chair, which the
+    screen left far behind (0.2 against 0.01), is not fitted. Where the table's own fit lay on
+    the points as closely as the sofa's, the object stays the unexplained table, its class record
+    holding the compared scores."""
+    import importlib
+    from types import SimpleNamespace
+
+    import torch
+    import trimesh
+
+    from jsrte.fit.scene import IN_FULL_RATIO, SCENE_SCREEN, SceneObject, _fit_other_classes_in_full
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.options import FitOptions
+
+    class UnitSphere(torch.nn.Module):
+        def forward(self, x: torch.Tensor, latent: torch.Tensor) -> torch.Tensor:
+            return x.norm(dim=-1, keepdim=True) - 1.0
+
+    models = {name: SimpleNamespace(decoder=UnitSphere(), meta={"name": name}) for name in
+              ("table", "sofa", "bed", "chair")}
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    centre = np.array([0.0, 0.5, 0.0])
+    points = Sim3(0.5, np.eye(3), centre).apply(sphere.sample(4000, seed=3))
+    query = SimpleNamespace(surface=points, n_refine_only=0)
+    radius = {"sofa": 0.5, "bed": 0.52}
+    fitted = []
+
+    def fit_at(r: float, class_choice: dict) -> SimpleNamespace:
+        return SimpleNamespace(quality={"inlier_share": 0.9}, transform=Sim3(r, np.eye(3), centre), flag="ok",
+                               latent=np.zeros(1), mesh_canonical=sphere, info={"class": class_choice})
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False, settings=None):
+        fitted.append(class_choice["chosen"])
+        return fit_at(radius[class_choice["chosen"]], class_choice)
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit"), "fit_recorded", fit_recorded)
+    scores = {"table": 0.01, "sofa": 0.03, "bed": 0.02, "chair": 0.2}
+
+    def unseen_table(r: float) -> SceneObject:
+        return SceneObject(0, 0, points, model="table", result=fit_at(r, {"chosen": "table", "scores": scores}),
+                           choice=SimpleNamespace(query=query), class_choice={"chosen": "table", "scores": scores},
+                           status="unexplained", unexplained_by="top", reason="no table seen")
+
+    sofa = unseen_table(0.54)
+    _fit_other_classes_in_full(sofa, models, FitOptions(preset="fast-scales"), SCENE_SCREEN)
+    assert fitted == ["bed", "sofa"] and sofa.model == "sofa" and sofa.status == "ok" and sofa.reason == ""
+    record = sofa.result.info["class"]
+    assert record["chosen"] == "sofa" and record["chosen_by"] == "top" and record["first_class"] == "table"
+    compared = record["in_full_scores"]
+    assert set(compared) == {"table", "sofa", "bed"} and compared["sofa"] < 0.005 < compared["bed"] < compared["table"]
+    assert compared["sofa"] <= IN_FULL_RATIO * compared["table"]
+    stays = unseen_table(0.5)
+    _fit_other_classes_in_full(stays, models, FitOptions(preset="fast-scales"), SCENE_SCREEN)
+    assert len(fitted) == 4 and stays.model == "table" and stays.status == "unexplained"
+    assert stays.reason == "no table seen" and stays.result.transform.s == 0.5
+    assert stays.result.info["class"]["chosen"] == "table" and set(stays.result.info["class"]["in_full_scores"]) == {
+        "table", "sofa", "bed"}

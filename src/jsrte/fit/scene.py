@@ -652,10 +652,10 @@ did not see is most often a sofa or a bed the table model explained at the scree
 IN_FULL_RATIO = 0.63
 """Another class's full fit replaces a rejected one only where its screen score on the object's
 points is at most this times the rejected fit's. On the tuning rooms (100-129 of seed 0), of the
-ten tables whose top was unseen, four scored below 0.7 with another class: two sofas (0.58 and
-0.60: found then), a second fit of a sofa already found (0.60: dropped as such) and a sofa
-merged with a neighbour (0.66: a sofa fitted off its place, a false detection); the other six
-0.7 or more."""
+eleven tables whose top was unseen, four scored below 0.7 with another class: two sofas (0.58
+and 0.60: found then), a second fit of a sofa already found (0.60: dropped as such) and a sofa
+merged with a neighbour (0.66: a sofa fitted off its place, a false detection); the other seven
+scored 0.7 or more, or had no other class close."""
 
 
 def _fit_other_classes_in_full(obj: SceneObject, models: dict, options: FitOptions, screen: ScreenSettings) -> None:
@@ -676,13 +676,13 @@ def _fit_other_classes_in_full(obj: SceneObject, models: dict, options: FitOptio
     query, best = obj.choice.query, min(scores.values())
     others = sorted((n for n, v in scores.items() if n != obj.model and v <= best + screen.final_margin),
                     key=scores.__getitem__)
+    if not others:
+        return
 
     def scored(name: str, result: FitResult) -> float:
         terms = screen_terms(models[name], query, result, screen, np.random.default_rng(options.seed))
         return screen_score(terms | {"rank": 0.0}, screen)
 
-    if not others:
-        return
     in_full = {obj.model: scored(obj.model, obj.result)}
     record = dict(obj.result.info.get("class") or {}, chosen_by=obj.unexplained_by, first_class=obj.model)
     fits = {name: fit_recorded(models[name], query, options, class_choice=record | {"chosen": name})

@@ -632,16 +632,10 @@ def _fit_another_class(obj: SceneObject, models: dict, options: FitOptions) -> N
             lo, hi = (None, None) if sizes is None else sizes.bounds(SIZE_MARGIN)
             if lo is None or not lo <= radius <= hi:
                 continue
-        first = (obj.model, obj.result, obj.status, obj.reason, obj.unexplained_by)
         record = dict(obj.result.info.get("class") or {}, chosen=name, chosen_by=obj.unexplained_by,
                       first_class=obj.model, first_radius_m=round(radius, 3))
-        obj.model, obj.status, obj.reason, obj.unexplained_by = name, "ok", "", ""
-        obj.result = fit_recorded(models[name], obj.choice.query, options, class_choice=record)
-        _refit_escaped(obj, obj.choice.query, models[name], options)
-        _flag_scene_object(obj, options.seed)
-        _mark_unexplained(obj, models)
-        if obj.status != "ok":
-            obj.model, obj.result, obj.status, obj.reason, obj.unexplained_by = first
+        _keep_if_found(obj, name, fit_recorded(models[name], obj.choice.query, options, class_choice=record),
+                       models, options)
         return
 
 
@@ -693,10 +687,17 @@ def _fit_other_classes_in_full(obj: SceneObject, models: dict, options: FitOptio
     name = min(others, key=in_full.__getitem__)
     if in_full[name] > IN_FULL_RATIO * in_full[obj.model]:
         return
+    fits[name].info["class"] = record | {"chosen": name} | compared
+    _keep_if_found(obj, name, fits[name], models, options)
+
+
+def _keep_if_found(obj: SceneObject, name: str, result: FitResult, models: dict, options: FitOptions) -> None:
+    """Make ``obj`` an object of class ``name`` fitted by ``result`` (fitted again where it
+    escaped its points: :func:`_refit_escaped`), flagged and checked (:func:`_flag_scene_object`,
+    :func:`_mark_unexplained`); where a check leaves it unexplained, ``obj`` is as it was."""
     first = (obj.model, obj.result, obj.status, obj.reason, obj.unexplained_by)
-    obj.model, obj.result, obj.status, obj.reason, obj.unexplained_by = name, fits[name], "ok", "", ""
-    obj.result.info["class"] = record | {"chosen": name} | compared
-    _refit_escaped(obj, query, models[name], options)
+    obj.model, obj.result, obj.status, obj.reason, obj.unexplained_by = name, result, "ok", "", ""
+    _refit_escaped(obj, obj.choice.query, models[name], options)
     _flag_scene_object(obj, options.seed)
     _mark_unexplained(obj, models)
     if obj.status != "ok":

@@ -13,7 +13,9 @@ from jsrte.fit.query import scan_candidates
 from jsrte.fit.scene import SCENE_SEGMENT
 from jsrte.scans.boxes import BoxSettings, box_evidence, upright_cuboid
 from jsrte.scans.scene import SceneSettings, scan_room, write_room
-from test_clutter import table
+from jsrte.scans.segment import SegmentSettings
+from test_clutter import box, chair_shape, table
+from test_scans import stand_in_chair
 
 ROOM = SceneSettings(scanner=replace(SceneSettings().scanner, width=240, height=180), walls=(1, 1),
                      wall_gap_m=(0.2, 0.3), first_neighbour_gap_m=(0.3, 0.4), mixed_pixel_fraction=0.1)
@@ -162,3 +164,83 @@ def test_a_single_fit_screens_a_box_last(box_room, monkeypatch):
     again = scan_candidates(box_room, rng=np.random.default_rng(0), segment=SCENE_SEGMENT)
     assert boxes(again, made) == found and asked == [[]]
     assert again.segmentation.candidates[box].summary["box"] == cands.segmentation.candidates[box].summary["box"]
+
+
+TOUCHING = SceneSettings(scanner=replace(SceneSettings().scanner, width=160, height=120), walls=(1, 1),
+                         wall_gap_m=(0.3, 0.4), first_neighbour_gap_m=(0.01, 0.02))
+"""A wall, and one other object 1-2 cm from the chair: one cluster with it."""
+
+
+def chair_beside(kind: str, mesh: trimesh.Trimesh, tmp_path) -> tuple[object, np.ndarray]:
+    """A stand-in chair scanned with ``mesh`` 1-2 cm beside it: its candidates with the chair's
+    class shape, and each scan point's truth label (0: the chair, 1: the other object)."""
+    from pykdtree.kdtree import KDTree
+
+    room = scan_room(stand_in_chair(), rng=np.random.default_rng(3), settings=TOUCHING, target_kind="chair",
+                     others=[(kind, mesh, "test")])
+    path = write_room(room, tmp_path, seed=3)
+
+    def segmented(peel: bool):
+        cands = scan_candidates(path, rng=np.random.default_rng(0), shape=chair_shape(),
+                                segment=replace(SegmentSettings(), peel_boxes=peel))
+        points = np.asarray(cands.segmented.cloud.points, float)[cands.segmented.index]
+        return cands.segmentation, room.labels[KDTree(room.scan.points).query(points, k=1)[1]]
+
+    return segmented
+
+
+def test_a_box_the_chair_touches_is_taken_out_of_their_cluster(tmp_path):
+    """A box as high as the chair's seat, 1-2 cm from it: the box under the cluster's open top
+    at its height is taken out, the chair is what is left, and the whole stays a candidate."""
+    segmented = chair_beside("box", box((0.5, 0.45, 0.5)), tmp_path)
+    segmentation, labels = segmented(peel=True)
+    cands = segmentation.candidates
+    whole = next(c for c in cands if c.summary.get("box_taken_out"))
+    assert (labels[whole.index] >= 0).mean() > 0.95 and {0, 1} <= set(labels[whole.index])
+    box_part, rest = (cands[k] for k in whole.parts)
+    assert not box_part.parts and set(box_part.index) | set(rest.index) == set(whole.index)
+    assert box_part.summary["box"]["top_coverage"] >= BoxSettings().min_top_coverage  # screened as a box
+    for part, label in ((box_part, 1), (rest, 0)):
+        own = labels[part.index] == label
+        assert own.mean() > 0.95  # the part is that object
+        assert own.sum() > 0.9 * (labels[whole.index] == label).sum()  # and holds almost all of it
+    assert segmentation.to_json()["candidates"][cands.index(whole)]["box_taken_out"]
+    unpeeled, _ = segmented(peel=False)
+    assert not any(c.summary.get("box_taken_out") for c in unpeeled.candidates)
+
+
+def test_a_table_the_chair_touches_is_not_taken_out_as_a_box(tmp_path):
+    """Under a table's top the cameras see the floor and the wall: no box to take out."""
+    segmented = chair_beside("table", table(), tmp_path)
+    segmentation, labels = segmented(peel=True)
+    assert any({0, 1} <= set(labels[c.index]) for c in segmentation.candidates)  # one cluster
+    assert not any(c.summary.get("box_taken_out") for c in segmentation.candidates)
+
+
+def block_sofa() -> trimesh.Trimesh:
+    """A sofa of two blocks, metres, standing on y = 0: a seat 1.6 x 0.45 x 0.8 and a back
+    1.6 x 0.85 x 0.2 joined along the seat's rear edge."""
+    move = trimesh.transformations.translation_matrix
+    seat = trimesh.creation.box([1.6, 0.45, 0.8], transform=move([0.0, 0.225, 0.0]))
+    back = trimesh.creation.box([1.6, 0.85, 0.2], transform=move([0.0, 0.425, 0.5]))
+    return trimesh.util.concatenate([seat, back])
+
+
+def test_a_sofa_whose_seat_passes_as_a_box_is_not_cut_there(tmp_path):
+    """The cuboid under a sofa's seat passes the box tests, but the back that rises from it is
+    no neck's width away and no sofa alone: the sofa stays one candidate."""
+    from jsrte.scans.boxes import peel_box
+    from jsrte.scans.segment import ClassShape
+
+    sofa = block_sofa()
+    room = scan_room(sofa, rng=np.random.default_rng(5), settings=TOUCHING, target_kind="sofa", others=[])
+    path = write_room(room, tmp_path, seed=5)
+    shape = ClassShape.of_mesh("sofa", sofa.vertices, sofa.sample(5000, seed=0))
+    cands = scan_candidates(path, rng=np.random.default_rng(0), shape=shape)
+    segmented = cands.segmented
+    whole = cands.segmentation.candidates[0]
+    points = np.asarray(segmented.cloud.points, float)[segmented.index[whole.index]]
+    heights = segmented.heights()[whole.index]
+    seat = peel_box(points, heights, segmented.up, segmented.seen_points(), segmented.viewpoints, 0.05, 300)
+    assert seat is not None and seat[1].is_box  # the seat alone is a box
+    assert not any(c.summary.get("box_taken_out") for c in cands.segmentation.candidates)

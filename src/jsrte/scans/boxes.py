@@ -13,6 +13,10 @@ A table's points also lie on the faces of its cuboid (its top, its legs at the c
 cover its top, but the cameras see the floor and the wall through the space under it; a sofa's
 seat and a bed's mattress lie inside their cuboids (the back and the headboard stand higher).
 Without known cameras the third test cannot be made and nothing is a box.
+
+A box can also hide inside a bigger cluster, touching the chair it half hides: :func:`peel_box`
+looks for the cuboid under each dense horizontal level of the cluster and takes it out where
+it passes the same tests.
 """
 
 from __future__ import annotations
@@ -116,6 +120,17 @@ YAW_STEPS = 90
 KEPT_PERCENT = 1.0
 """The bounding rectangle and the top leave out this percentage of the points on each side
 (flying pixels and mixed pixels at the edges)."""
+PEEL_LEVELS = 4
+"""At most this many horizontal levels of a cluster (its densest, 4 cm or more apart) are tried
+as a box's top."""
+PEEL_LEVEL_SHARE = 0.03
+"""A level holds at least this share of the cluster's points (within 1 cm)."""
+PEEL_TOP_BAND_M = 0.02
+"""A box's top: the points within this of its level."""
+PEEL_TOP_POINTS = 60
+"""A box's top holds at least this many points."""
+PEEL_LOWEST_M = 0.15
+"""A box's top lies at least this high above the floor."""
 SIGHT_POINTS = 20_000
 """At most this many of the points seen near a cuboid (a fixed draw) are tested for lines of
 sight through it."""
@@ -147,12 +162,13 @@ def upright_cuboid(points: np.ndarray, up: np.ndarray, floor_offset: float) -> C
 
 
 def box_evidence(points: np.ndarray, up: np.ndarray, floor_offset: float, seen: np.ndarray | None,
-                 viewpoints: np.ndarray | None, settings: BoxSettings = BoxSettings()) -> BoxEvidence:
+                 viewpoints: np.ndarray | None, settings: BoxSettings = BoxSettings(),
+                 cuboid: Cuboid | None = None) -> BoxEvidence:
     """How much the candidate of ``points`` (n, 3) looks like a box (the module's tests), on a
     floor ``up . x = floor_offset``; ``seen`` (m, 3): every point the sensor saw, ``viewpoints``
     (k, 3): the cameras (the lines of sight are measured only where both are given and the
-    cheaper tests pass)."""
-    cuboid = upright_cuboid(points, up, floor_offset)
+    cheaper tests pass). The box's ``cuboid`` is the points' upright cuboid unless given."""
+    cuboid = upright_cuboid(points, up, floor_offset) if cuboid is None else cuboid
     local = cuboid.local(points)
     half = cuboid.extents / 2.0
     gap = np.abs(half - np.abs(local))
@@ -185,6 +201,81 @@ def candidate_boxes(cands: object, positions: list[int],
         if evidence.is_box:
             found[k] = evidence
     return found
+
+
+def peel_box(points: np.ndarray, heights: np.ndarray, up: np.ndarray, seen: np.ndarray,
+             viewpoints: np.ndarray, eps: float, min_rest: int,
+             settings: BoxSettings = BoxSettings()) -> tuple[np.ndarray, BoxEvidence] | None:
+    """The points of a box among ``points`` (n, 3) of one cluster standing on the floor
+    (``heights`` (n,) above it, m; ``up`` (3,) its unit normal), as a mask (n,), with the
+    evidence that it is one; None when the cluster holds none.
+
+    Each of the cluster's densest horizontal levels (:func:`dense_levels`) is tried as a box's
+    top: the points on it with nothing above them (:func:`_open_top`) are clustered (DBSCAN at
+    ``eps``, the segmentation's radius); each piece of :data:`PEEL_TOP_POINTS` or more gives an
+    upright cuboid (:func:`upright_cuboid` of the piece, from the floor to the level), and the
+    cluster's points within ``face_band_m`` of it are the box if they pass :func:`box_evidence`
+    for that cuboid (a top's edges place it better than the points beside its faces, a
+    neighbour's among them) with ``seen`` (m, 3), every point the sensor saw, and its
+    ``viewpoints`` (k, 3), and at least ``min_rest`` points are left beside it.
+    """
+    from jsrte.geometry.point_ops import dbscan_labels
+
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    floor_offset = float(np.median(points @ up - heights))
+    band = settings.face_band_m
+    for level in dense_levels(heights):
+        top = _open_top(points, heights, up, level)
+        labels = dbscan_labels(points[top], eps, 5)
+        for k in range(labels.max(initial=-1) + 1):
+            piece = top[labels == k]
+            if len(piece) < PEEL_TOP_POINTS:
+                continue
+            cuboid = upright_cuboid(points[piece], up, floor_offset)
+            local = np.abs(cuboid.local(points))
+            inside = np.all(local[:, :2] <= cuboid.extents[:2] / 2.0 + band, axis=1) & (heights <= level + band)
+            if inside.sum() < PEEL_TOP_POINTS or (~inside).sum() < min_rest:
+                continue
+            evidence = box_evidence(points[inside], up, floor_offset, seen, viewpoints, settings, cuboid)
+            if evidence.is_box:
+                return inside, evidence
+    return None
+
+
+def _open_top(points: np.ndarray, heights: np.ndarray, up: np.ndarray, level: float) -> np.ndarray:
+    """Indices of the points of ``points`` (n, 3) at ``level`` (within :data:`PEEL_TOP_BAND_M`)
+    with no point higher above them (none of those higher than the band within
+    :data:`PEEL_TOP_BAND_M` across the unit ``up`` (3,)): a top, not the slice of a chair's back
+    or a table's leg at that height."""
+    from pykdtree.kdtree import KDTree
+
+    at_level = np.flatnonzero(np.abs(heights - level) < PEEL_TOP_BAND_M)
+    higher = heights > level + PEEL_TOP_BAND_M
+    if not higher.any() or not len(at_level):
+        return at_level
+    across = np.linalg.svd(up.reshape(1, 3))[2][1:]  # (2, 3) a basis of the floor's plane
+    tree = KDTree(np.ascontiguousarray(points[higher] @ across.T))
+    distance, _ = tree.query(np.ascontiguousarray(points[at_level] @ across.T), k=1)
+    return at_level[distance > PEEL_TOP_BAND_M]
+
+
+def dense_levels(heights: np.ndarray) -> list[float]:
+    """Up to :data:`PEEL_LEVELS` heights (m) at which many of ``heights`` (n,) lie: 1 cm bins
+    from :data:`PEEL_LOWEST_M` up, each summed with its two neighbours, densest first, each
+    holding :data:`PEEL_LEVEL_SHARE` of the points (and 60 or more), 4 cm or more apart."""
+    edges = np.arange(PEEL_LOWEST_M, float(heights.max(initial=0.0)) + 0.02, 0.01)
+    if len(edges) < 2:
+        return []
+    counts = np.convolve(np.histogram(heights, bins=edges)[0], [1, 1, 1], mode="same")
+    least = max(PEEL_TOP_POINTS, PEEL_LEVEL_SHARE * len(heights))
+    levels: list[float] = []
+    for b in np.argsort(-counts, kind="stable"):
+        if counts[b] < least or len(levels) == PEEL_LEVELS:
+            break
+        level = float(edges[b]) + 0.005
+        if all(abs(level - other) >= 0.04 for other in levels):
+            levels.append(level)
+    return levels
 
 
 def _top_coverage(top: np.ndarray, half: np.ndarray, cell: float) -> float:

@@ -517,6 +517,7 @@ def segment_scan(
         segmentation = segment_objects(points[index], heights, up_axis, rng=np.random.default_rng(SEGMENT_SEED),
                                        shape=shape, at=at, viewpoints=viewpoints,
                                        normals=None if cloud.normals is None else cloud.normals[index],
+                                       seen=points if mixed is None else points[~mixed],
                                        settings=segment, path=cloud.path)
     except JsrteError:
         if settings.units_check:  # nothing of an object's size: say first if the units look wrong

@@ -17,6 +17,11 @@ Above the floor (found by :func:`jsrte.scans.preprocess.segment_floor`), in orde
    object cut at a narrow place (a bed's headboard) and two objects side by side look alike
    to proportions, and a quick fit (``jsrte.fit.screen``) tells them apart. A cluster whose
    neck is refused for want of class evidence keeps it (its ``neck``), for the screen.
+   Before any cut, a box that the cluster holds beside something else (an upright cuboid seen
+   solid: :func:`jsrte.scans.boxes.peel_box`) is taken out of it where that cut would be kept
+   as any other (a weak neck, the rest matching the class better than the whole): a chair half
+   hidden by the box it touches has no neck the normalized cut finds first. The whole stays a
+   candidate beside the box and the rest, and the rest may be cut again.
 5. **Candidates**: clusters too small, flat, thin or big to be an object are dropped; the
    others are ranked by how well their proportions and height profile match the class
    (:class:`ClassShape`, from the model), or by their distance to a point given by the user.
@@ -99,6 +104,11 @@ class SegmentSettings:
     cluster_min_points: int = 10
     split_depth: int = 2
     """A cluster is split at most this many times over (up to four touching objects)."""
+    peel_boxes: bool = True
+    """Take a box out of a cluster before cutting it (:func:`jsrte.scans.boxes.peel_box`), where
+    that cut would be kept as any other (a neck of at most ``cut_max``, what is left matching
+    the class better than the whole by ``split_margin``): needs a class and the sensor's
+    viewpoints."""
     cut_samples: int = 2000
     cut_neighbours: int = 10
     """The normalized cut's graph: this many points, each joined to this many nearest."""
@@ -240,7 +250,7 @@ def segment_objects(
     points: np.ndarray, heights: np.ndarray, up: np.ndarray, *, rng: np.random.Generator,
     shape: ClassShape | None = None, at: np.ndarray | None = None,
     viewpoints: np.ndarray | None = None, normals: np.ndarray | None = None,
-    settings: SegmentSettings = SegmentSettings(), path: object = None,
+    seen: np.ndarray | None = None, settings: SegmentSettings = SegmentSettings(), path: object = None,
 ) -> Segmentation:
     """Find the object among ``points`` (n, 3) standing on the floor (``heights`` (n,) above it,
     ``up`` (3,) its unit normal).
@@ -248,8 +258,9 @@ def segment_objects(
     The object is the candidate nearest ``at`` (3,) when given, else the one that matches
     ``shape`` best, else the one with the most points. The sensor's ``viewpoints`` (k, 3) or the
     points' sensor-facing ``normals`` (n, 3), when known, tell walls from the faces of furniture
-    (:func:`find_walls`). Raises ``JsrteError`` (naming ``path``) when no candidate is left,
-    saying what was removed.
+    (:func:`find_walls`). With the ``viewpoints``, every point the sensor ``seen`` (m, 3; default
+    ``points``) tells a box seen solid (``peel_boxes``). Raises ``JsrteError`` (naming ``path``)
+    when no candidate is left, saying what was removed.
     """
     points = np.ascontiguousarray(points, dtype=np.float64)
     is_wall, walls = find_walls(points, up, rng=rng, viewpoints=viewpoints, normals=normals, settings=settings)
@@ -264,9 +275,12 @@ def segment_objects(
     clusters = [kept[labels == k] for k in range(labels.max(initial=-1) + 1)]
     clusters = _join(clusters, points, heights, shape, settings)
     clusters = _join_supported(clusters, points, heights, up, settings)
+    sight = None
+    if settings.peel_boxes and viewpoints is not None and len(viewpoints):
+        sight = Sight(points if seen is None else np.asarray(seen, float), np.asarray(viewpoints, float))
     nodes: list[_Node] = []
     for c in clusters:
-        _family_tree(c, points, heights, shape, settings, eps, nodes)
+        _family_tree(c, points, heights, up, shape, settings, eps, nodes, sight=sight)
     candidates = _family_candidates(nodes, points, heights, up, shape, settings)
     removed["small_clusters"] = int(sum(len(c.index) for c in candidates if c.rejected.startswith("too few")))
     chosen, how = _choose(candidates, points, at, settings.size_weight)
@@ -390,33 +404,45 @@ class _Cluster:
 class _Node:
     """A cluster of a split tree: its points ``index``, the position of its ``parent`` in the
     tree's list (None: a root), a refused weak ``neck``, the value of the cut that split it
-    (``cut_value``; None: not split) and whether it was joined from its parts (``joined``)."""
+    (``cut_value``; None: not split), whether it was joined from its parts (``joined``),
+    whether a box was taken out of it (``peeled``) and, for such a box, its evidence (``box``,
+    as the screen records it)."""
 
     index: np.ndarray
     parent: int | None
     neck: list[np.ndarray] = field(default_factory=list)
     cut_value: float | None = None
     joined: bool = False
+    peeled: bool = False
+    box: dict[str, Any] | None = None
 
 
-def _family_tree(cluster: _Cluster, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-                 s: SegmentSettings, eps: float, nodes: list[_Node], parent: int | None = None,
-                 depth: int = 0) -> None:
+@dataclass(frozen=True)
+class Sight:
+    """What the sensor saw: every point ``seen`` (m, 3) on a surface and its ``viewpoints`` (k, 3)."""
+
+    seen: np.ndarray
+    viewpoints: np.ndarray
+
+
+def _family_tree(cluster: _Cluster, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                 shape: ClassShape | None, s: SegmentSettings, eps: float, nodes: list[_Node],
+                 parent: int | None = None, depth: int = 0, sight: Sight | None = None) -> None:
     """Append to ``nodes`` ``cluster``, its members (joined clusters) as its parts, and what
     each is split into (:func:`_split_tree`; ``eps``: the clustering radius), each parent
     before its parts."""
     if not cluster.members:
-        _split_tree(cluster.index, points, heights, shape, s, eps, nodes, parent, depth)
+        _split_tree(cluster.index, points, heights, up, shape, s, eps, nodes, parent, depth, sight)
         return
     nodes.append(_Node(cluster.index, parent, joined=True))
     parent = len(nodes) - 1
     for member in cluster.members:
-        _family_tree(member, points, heights, shape, s, eps, nodes, parent, depth + 1)
+        _family_tree(member, points, heights, up, shape, s, eps, nodes, parent, depth + 1, sight)
 
 
-def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
-                s: SegmentSettings, eps: float, nodes: list[_Node], parent: int | None = None,
-                depth: int = 0) -> None:
+def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                shape: ClassShape | None, s: SegmentSettings, eps: float, nodes: list[_Node],
+                parent: int | None = None, depth: int = 0, sight: Sight | None = None) -> None:
     """Append to ``nodes`` ``cluster`` (indices) and its parts, split by the normalized cut of
     its neighbour graph (:func:`normalized_cut`: the narrowest neck between two bodies, where
     touching objects meet), each parent before its parts. A split is kept when one part matches
@@ -424,7 +450,16 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, sh
     too flat nor too thin), or when the whole is too big to be an object (then the whole is
     left out: it can only be parts); each part is split again, ``split_depth`` deep. A weak neck
     refused for want of class evidence is kept as the ``neck`` of a cluster left whole (not of a
-    part)."""
+    part). Before a cut, a box is taken out of the cluster where ``sight`` shows one
+    (:func:`_peel`): the box is a part not cut further, the rest is cut as any cluster."""
+    peeled = _peel(cluster, points, heights, up, shape, s, eps, sight) if depth < s.split_depth else None
+    if peeled is not None:
+        box, evidence = peeled
+        nodes.append(_Node(cluster, parent, peeled=True))
+        parent = len(nodes) - 1
+        nodes.append(_Node(cluster[box], parent, box=evidence.to_json()))
+        _split_tree(cluster[~box], points, heights, up, shape, s, eps, nodes, parent, depth + 1, sight)
+        return
     cut = _cut(cluster, points, heights, shape, s, eps, depth)
     if cut is None or not cut[2]:
         nodes.append(_Node(cluster, parent, cut[0] if cut is not None and depth == 0 else []))
@@ -434,7 +469,34 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, sh
         nodes.append(_Node(cluster, parent, cut_value=value))
         parent = len(nodes) - 1
     for part in parts:
-        _split_tree(part, points, heights, shape, s, eps, nodes, parent, depth + 1)
+        _split_tree(part, points, heights, up, shape, s, eps, nodes, parent, depth + 1, sight)
+
+
+def _peel(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+          shape: ClassShape | None, s: SegmentSettings, eps: float,
+          sight: Sight | None) -> tuple[np.ndarray, Any] | None:
+    """The mask (over ``cluster``'s indices) of a box it holds beside an object-sized rest, and
+    the box's evidence (``jsrte.scans.boxes.peel_box``), kept as a cut is: at a weak neck (a
+    cut value of at most ``cut_max``) and with the rest matching the class better than the
+    whole by ``split_margin``; None where there is none, or no class or nothing to test it
+    with. A sofa's base and a bed's mattress are upright cuboids seen solid too, but joined to
+    the back or the headboard that rises from them by more than a neck."""
+    from jsrte.scans.boxes import peel_box
+
+    if sight is None or shape is None or len(cluster) < 2 * s.shred_points:
+        return None
+    peeled = peel_box(points[cluster], heights[cluster], up, sight.seen, sight.viewpoints, eps, s.shred_points)
+    if peeled is None:
+        return None
+    rest = cluster[~peeled[0]]
+    if not _object_sized(points[rest], heights[rest], s):
+        return None
+    whole = class_score(points[cluster], heights[cluster], shape)
+    alone = class_score(points[rest], heights[rest], shape)
+    if alone >= whole - s.split_margin:
+        return None
+    value = cut_value(points[cluster], peeled[0], samples=s.cut_samples, neighbours=s.cut_neighbours)
+    return peeled if value <= s.cut_max else None
 
 
 def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
@@ -531,6 +593,10 @@ def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarr
             candidates[position[k]].summary["cut"] = round(nodes[k].cut_value, 5)
         if nodes[k].joined:
             candidates[position[k]].summary["joined"] = True
+        if nodes[k].peeled:
+            candidates[position[k]].summary["box_taken_out"] = True
+        if nodes[k].box is not None:
+            candidates[position[k]].summary["box"] = nodes[k].box
     for k in order:
         if parent[k] is not None:
             candidates[position[k]].parent = position[parent[k]]
@@ -564,20 +630,12 @@ def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int =
     nearest sample.
     """
     from pykdtree.kdtree import KDTree
-    from scipy.sparse import coo_matrix, diags
+    from scipy.sparse import diags
     from scipy.sparse.linalg import eigsh
 
     points = np.ascontiguousarray(points, dtype=np.float64)
-    pick = np.random.default_rng(seed).permutation(len(points))[:samples]
-    sub = points[np.sort(pick)]
-    k = min(neighbours + 1, len(sub))
-    distance, near = KDTree(sub).query(sub, k=k)
-    sigma = float(np.median(distance[:, 1:])) or 1e-6
-    rows = np.repeat(np.arange(len(sub)), k - 1)
-    weight = np.exp(-(distance[:, 1:].reshape(-1) / sigma) ** 2)
-    graph = coo_matrix((weight, (rows, near[:, 1:].reshape(-1))), shape=(len(sub), len(sub))).tocsr()
-    graph = graph.maximum(graph.T)
-    degree = np.asarray(graph.sum(axis=1)).reshape(-1) + 1e-12
+    pick, graph, degree = _neighbour_graph(points, samples, neighbours, seed)
+    sub = points[pick]
     scale = diags(1.0 / np.sqrt(degree))
     normalized = scale @ graph @ scale
     try:
@@ -589,14 +647,50 @@ def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int =
     best, best_cut = None, np.inf
     for threshold in np.quantile(fiedler, np.linspace(0.05, 0.95, 19)):
         side = fiedler > threshold
-        cut = float(graph[side][:, ~side].sum())
-        value = cut / degree[side].sum() + cut / degree[~side].sum() if side.any() and (~side).any() else np.inf
+        value = _ncut_value(graph, degree, side)
         if value < best_cut:
             best, best_cut = side, value
     if best is None:
         return np.ones(len(points), dtype=bool), float("inf")
     _, nearest = KDTree(sub).query(points, k=1)
     return best[nearest], best_cut
+
+
+def cut_value(points: np.ndarray, side: np.ndarray, *, samples: int = 2000, neighbours: int = 10,
+              seed: int = 0) -> float:
+    """The normalized cut's value of the two-way cut ``side`` (n,) bool of ``points`` (n, 3), on
+    the graph :func:`normalized_cut` builds (the same sample): how weak a neck it cuts."""
+    pick, graph, degree = _neighbour_graph(np.ascontiguousarray(points, dtype=np.float64), samples,
+                                           neighbours, seed)
+    return _ncut_value(graph, degree, np.asarray(side, bool)[pick])
+
+
+def _neighbour_graph(points: np.ndarray, samples: int, neighbours: int, seed: int
+                     ) -> tuple[np.ndarray, object, np.ndarray]:
+    """The sorted indices (s,) of up to ``samples`` of ``points`` (n, 3) (a fixed random draw),
+    their symmetric k-nearest-neighbour graph (s, s) with Gaussian weights of the distance
+    (scipy sparse) and its degrees (s,)."""
+    from pykdtree.kdtree import KDTree
+    from scipy.sparse import coo_matrix
+
+    pick = np.sort(np.random.default_rng(seed).permutation(len(points))[:samples])
+    sub = points[pick]
+    k = min(neighbours + 1, len(sub))
+    distance, near = KDTree(sub).query(sub, k=k)
+    sigma = float(np.median(distance[:, 1:])) or 1e-6
+    rows = np.repeat(np.arange(len(sub)), k - 1)
+    weight = np.exp(-(distance[:, 1:].reshape(-1) / sigma) ** 2)
+    graph = coo_matrix((weight, (rows, near[:, 1:].reshape(-1))), shape=(len(sub), len(sub))).tocsr()
+    graph = graph.maximum(graph.T)
+    return pick, graph, np.asarray(graph.sum(axis=1)).reshape(-1) + 1e-12
+
+
+def _ncut_value(graph: object, degree: np.ndarray, side: np.ndarray) -> float:
+    """Normalized cut value of the two-way cut ``side`` (s,) bool of the graph (s, s) with ``degree`` (s,)."""
+    if not side.any() or side.all():
+        return float("inf")
+    cut = float(graph[side][:, ~side].sum())
+    return cut / degree[side].sum() + cut / degree[~side].sum()
 
 
 def _object_sized(points: np.ndarray, heights: np.ndarray, s: SegmentSettings) -> bool:

@@ -11,7 +11,7 @@ import trimesh
 
 from jsrte.fit.query import scan_candidates
 from jsrte.fit.scene import SCENE_SEGMENT
-from jsrte.scans.boxes import BoxSettings, box_evidence, upright_cuboid
+from jsrte.scans.boxes import BoxSettings, box_evidence, candidate_boxes, upright_cuboid
 from jsrte.scans.scene import SceneSettings, scan_room, write_room
 from jsrte.scans.segment import SegmentSettings
 from test_clutter import box, chair_shape, table
@@ -171,50 +171,59 @@ TOUCHING = SceneSettings(scanner=replace(SceneSettings().scanner, width=160, hei
 """A wall, and one other object 1-2 cm from the chair: one cluster with it."""
 
 
-def chair_beside(kind: str, mesh: trimesh.Trimesh, tmp_path) -> tuple[object, np.ndarray]:
-    """A stand-in chair scanned with ``mesh`` 1-2 cm beside it: its candidates with the chair's
-    class shape, and each scan point's truth label (0: the chair, 1: the other object)."""
+def chair_beside(kind: str, mesh: trimesh.Trimesh, tmp_path, gap_m: tuple[float, float] = (0.01, 0.02)):
+    """A stand-in chair scanned with ``mesh`` ``gap_m`` (metres, a range) beside it, and a function of (peel, with
+    class): its candidates (``ScanCandidates``; segmented with the chair's class shape, or as a
+    scene of unknown class) and each segmented point's truth label (0: the chair, 1: the other
+    object)."""
     from pykdtree.kdtree import KDTree
 
-    room = scan_room(stand_in_chair(), rng=np.random.default_rng(3), settings=TOUCHING, target_kind="chair",
-                     others=[(kind, mesh, "test")])
+    room = scan_room(stand_in_chair(), rng=np.random.default_rng(3), target_kind="chair",
+                     settings=replace(TOUCHING, first_neighbour_gap_m=gap_m), others=[(kind, mesh, "test")])
     path = write_room(room, tmp_path, seed=3)
 
-    def segmented(peel: bool):
-        cands = scan_candidates(path, rng=np.random.default_rng(0), shape=chair_shape(),
-                                segment=replace(SegmentSettings(), peel_boxes=peel))
+    def segmented(peel: bool, with_class: bool = True):
+        settings = replace(SegmentSettings() if with_class else SCENE_SEGMENT, peel_boxes=peel)
+        cands = scan_candidates(path, rng=np.random.default_rng(0), shape=chair_shape() if with_class else None,
+                                segment=settings)
         points = np.asarray(cands.segmented.cloud.points, float)[cands.segmented.index]
-        return cands.segmentation, room.labels[KDTree(room.scan.points).query(points, k=1)[1]]
+        return cands, room.labels[KDTree(room.scan.points).query(points, k=1)[1]]
 
     return segmented
 
 
-def test_a_box_the_chair_touches_is_taken_out_of_their_cluster(tmp_path):
-    """A box as high as the chair's seat, 1-2 cm from it: the box under the cluster's open top
-    at its height is taken out, the chair is what is left, and the whole stays a candidate."""
-    segmented = chair_beside("box", box((0.5, 0.45, 0.5)), tmp_path)
-    segmentation, labels = segmented(peel=True)
+@pytest.mark.parametrize("with_class", [True, False])
+def test_a_box_the_chair_touches_is_taken_out_of_their_cluster(tmp_path, with_class):
+    """A box higher than the chair's seat, 3-4 cm from it (one cluster): the box under the
+    cluster's open top at its height is taken out, the chair is what is left, and the whole
+    stays a candidate; with the class unknown (a scene) too, where the box keeps the evidence it
+    was taken out on."""
+    segmented = chair_beside("box", box((0.5, 0.6, 0.5)), tmp_path, gap_m=(0.03, 0.04))
+    found, labels = segmented(peel=True, with_class=with_class)
+    segmentation = found.segmentation
     cands = segmentation.candidates
     whole = next(c for c in cands if c.summary.get("box_taken_out"))
     assert (labels[whole.index] >= 0).mean() > 0.95 and {0, 1} <= set(labels[whole.index])
-    box_part, rest = (cands[k] for k in whole.parts)
+    box_part, rest = sorted((cands[k] for k in whole.parts), key=lambda c: c.box is None)
     assert not box_part.parts and set(box_part.index) | set(rest.index) == set(whole.index)
     assert box_part.summary["box"]["top_coverage"] >= BoxSettings().min_top_coverage  # screened as a box
     for part, label in ((box_part, 1), (rest, 0)):
         own = labels[part.index] == label
         assert own.mean() > 0.95  # the part is that object
         assert own.sum() > 0.9 * (labels[whole.index] == label).sum()  # and holds almost all of it
-    assert segmentation.to_json()["candidates"][cands.index(whole)]["box_taken_out"]
-    unpeeled, _ = segmented(peel=False)
-    assert not any(c.summary.get("box_taken_out") for c in unpeeled.candidates)
+    assert segmentation.to_json()["candidates"][next(k for k, c in enumerate(cands) if c is whole)]["box_taken_out"]
+    at = next(k for k in whole.parts if cands[k] is box_part)
+    assert box_part.box is not None and candidate_boxes(found, [at]) == {at: box_part.box}
+    unpeeled, _ = segmented(peel=False, with_class=with_class)
+    assert not any(c.summary.get("box_taken_out") for c in unpeeled.segmentation.candidates)
 
 
 def test_a_table_the_chair_touches_is_not_taken_out_as_a_box(tmp_path):
     """Under a table's top the cameras see the floor and the wall: no box to take out."""
     segmented = chair_beside("table", table(), tmp_path)
-    segmentation, labels = segmented(peel=True)
-    assert any({0, 1} <= set(labels[c.index]) for c in segmentation.candidates)  # one cluster
-    assert not any(c.summary.get("box_taken_out") for c in segmentation.candidates)
+    found, labels = segmented(peel=True)
+    assert any({0, 1} <= set(labels[c.index]) for c in found.segmentation.candidates)  # one cluster
+    assert not any(c.summary.get("box_taken_out") for c in found.segmentation.candidates)
 
 
 def block_sofa() -> trimesh.Trimesh:
@@ -244,3 +253,5 @@ def test_a_sofa_whose_seat_passes_as_a_box_is_not_cut_there(tmp_path):
     seat = peel_box(points, heights, segmented.up, segmented.seen_points(), segmented.viewpoints, 0.05, 300)
     assert seat is not None and seat[1].is_box  # the seat alone is a box
     assert not any(c.summary.get("box_taken_out") for c in cands.segmentation.candidates)
+    scene = scan_candidates(path, rng=np.random.default_rng(0), segment=SCENE_SEGMENT)  # class unknown
+    assert not any(c.summary.get("box_taken_out") for c in scene.segmentation.candidates)

@@ -188,7 +188,8 @@ def candidate_boxes(cands: object, positions: list[int],
                     settings: BoxSettings = BoxSettings()) -> dict[int, BoxEvidence]:
     """The candidates at ``positions`` of ``cands`` (``jsrte.fit.query.ScanCandidates``) that
     are boxes, by position, with their evidence (:func:`box_evidence`, the scan's floor, points
-    seen and cameras); none without a floor."""
+    seen and cameras; a box the segmentation took out of a cluster keeps the evidence it was
+    taken out on); none without a floor."""
     segmented = cands.segmented
     if segmented.floor is None:
         return {}
@@ -196,6 +197,9 @@ def candidate_boxes(cands: object, positions: list[int],
     seen = segmented.seen_points()
     found = {}
     for k in positions:
+        if cands.segmentation.candidates[k].box is not None:
+            found[k] = cands.segmentation.candidates[k].box
+            continue
         evidence = box_evidence(points[cands.segmentation.candidates[k].index], segmented.up,
                                 float(segmented.floor.offset), seen, segmented.viewpoints, settings)
         if evidence.is_box:

@@ -106,9 +106,9 @@ class SegmentSettings:
     """A cluster is split at most this many times over (up to four touching objects)."""
     peel_boxes: bool = True
     """Take a box out of a cluster before cutting it (:func:`jsrte.scans.boxes.peel_box`), where
-    that cut would be kept as any other (a neck of at most ``cut_max``, what is left matching
-    the class better than the whole by ``split_margin``): needs a class and the sensor's
-    viewpoints."""
+    that cut would be kept as any other (with a class: a neck of at most ``cut_max``, what is
+    left matching the class better than the whole by ``split_margin``; without: a neck of at
+    most ``cut_max_without_class``): needs the sensor's viewpoints."""
     cut_samples: int = 2000
     cut_neighbours: int = 10
     """The normalized cut's graph: this many points, each joined to this many nearest."""
@@ -172,6 +172,8 @@ class Candidate:
     neck : a cluster left whole: its two parts at a weak neck where the split was refused for
         want of class evidence (empty: none); the screen may still cut it there
         (``jsrte.fit.screen.cut_necks``)
+    box : the evidence that it is a box (``jsrte.scans.boxes.BoxEvidence``), where it was taken
+        out of a cluster as one (None: not taken out)
     """
 
     index: np.ndarray
@@ -181,6 +183,7 @@ class Candidate:
     parent: int | None = None
     parts: list[int] = field(default_factory=list)
     neck: list[Candidate] = field(default_factory=list)
+    box: Any = None
 
 
 @dataclass
@@ -406,7 +409,7 @@ class _Node:
     tree's list (None: a root), a refused weak ``neck``, the value of the cut that split it
     (``cut_value``; None: not split), whether it was joined from its parts (``joined``),
     whether a box was taken out of it (``peeled``) and, for such a box, its evidence (``box``,
-    as the screen records it)."""
+    ``jsrte.scans.boxes.BoxEvidence``)."""
 
     index: np.ndarray
     parent: int | None
@@ -414,7 +417,7 @@ class _Node:
     cut_value: float | None = None
     joined: bool = False
     peeled: bool = False
-    box: dict[str, Any] | None = None
+    box: Any = None
 
 
 @dataclass(frozen=True)
@@ -457,7 +460,7 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up
         box, evidence = peeled
         nodes.append(_Node(cluster, parent, peeled=True))
         parent = len(nodes) - 1
-        nodes.append(_Node(cluster[box], parent, box=evidence.to_json()))
+        nodes.append(_Node(cluster[box], parent, box=evidence))
         _split_tree(cluster[~box], points, heights, up, shape, s, eps, nodes, parent, depth + 1, sight)
         return
     cut = _cut(cluster, points, heights, shape, s, eps, depth)
@@ -476,14 +479,16 @@ def _peel(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.n
           shape: ClassShape | None, s: SegmentSettings, eps: float,
           sight: Sight | None) -> tuple[np.ndarray, Any] | None:
     """The mask (over ``cluster``'s indices) of a box it holds beside an object-sized rest, and
-    the box's evidence (``jsrte.scans.boxes.peel_box``), kept as a cut is: at a weak neck (a
-    cut value of at most ``cut_max``) and with the rest matching the class better than the
-    whole by ``split_margin``; None where there is none, or no class or nothing to test it
-    with. A sofa's base and a bed's mattress are upright cuboids seen solid too, but joined to
-    the back or the headboard that rises from them by more than a neck."""
+    the box's evidence (``jsrte.scans.boxes.peel_box``), kept as a cut is: with a class, at a
+    weak neck (a cut value of at most ``cut_max``) and with the rest matching the class better
+    than the whole by ``split_margin``; without one, at a neck of at most
+    ``cut_max_without_class``. None where there is none, or where nothing can test it. A sofa's
+    base and a bed's mattress are upright cuboids seen solid too, but joined to the back or the
+    headboard that rises from them by more than a neck."""
     from jsrte.scans.boxes import peel_box
 
-    if sight is None or shape is None or len(cluster) < 2 * s.shred_points:
+    most = s.cut_max if shape is not None else s.cut_max_without_class
+    if sight is None or most is None or len(cluster) < 2 * s.shred_points:
         return None
     peeled = peel_box(points[cluster], heights[cluster], up, sight.seen, sight.viewpoints, eps, s.shred_points)
     if peeled is None:
@@ -491,12 +496,12 @@ def _peel(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.n
     rest = cluster[~peeled[0]]
     if not _object_sized(points[rest], heights[rest], s):
         return None
-    whole = class_score(points[cluster], heights[cluster], shape)
-    alone = class_score(points[rest], heights[rest], shape)
-    if alone >= whole - s.split_margin:
-        return None
+    if shape is not None:
+        whole = class_score(points[cluster], heights[cluster], shape)
+        if class_score(points[rest], heights[rest], shape) >= whole - s.split_margin:
+            return None
     value = cut_value(points[cluster], peeled[0], samples=s.cut_samples, neighbours=s.cut_neighbours)
-    return peeled if value <= s.cut_max else None
+    return peeled if value <= most else None
 
 
 def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,
@@ -596,7 +601,8 @@ def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarr
         if nodes[k].peeled:
             candidates[position[k]].summary["box_taken_out"] = True
         if nodes[k].box is not None:
-            candidates[position[k]].summary["box"] = nodes[k].box
+            candidates[position[k]].box = nodes[k].box
+            candidates[position[k]].summary["box"] = nodes[k].box.to_json()
     for k in order:
         if parent[k] is not None:
             candidates[position[k]].parent = position[parent[k]]

@@ -124,7 +124,8 @@ PEEL_LEVELS = 4
 """At most this many horizontal levels of a cluster (its densest, 4 cm or more apart) are tried
 as a box's top."""
 PEEL_LEVEL_SHARE = 0.03
-"""A level holds at least this share of the cluster's points (within 1 cm)."""
+"""A level holds at least this share of the cluster's points (in its 1 cm bin and the two
+beside it)."""
 PEEL_TOP_BAND_M = 0.02
 """A box's top: the points within this of its level."""
 PEEL_TOP_POINTS = 60

@@ -17,7 +17,8 @@ the object's). An object is:
 - ``pieces``: the candidate is mostly the object's but holds less than ``--share`` of it (cut
   apart, or the rest seen as a scrap);
 - ``impure``: the candidate holds enough of it but too much of something else;
-- ``unseen``: no candidate holds any of its points.
+- ``unseen``: no candidate holds any of its points (or the room's segmentation failed: its
+  error is printed).
 
 An object without a candidate of its own is seldom found by the scene's fits (on the tuning
 rooms 100-129: 71 of the 87 objects with one were found, 9 of the 24 without), so the share
@@ -56,6 +57,8 @@ def main() -> None:
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(_room, *zip(*jobs, strict=True)))
     rows = [row for room_rows, _, _ in results for row in room_rows]
+    for room, error in sorted({(row["room"], row["error"]) for row in rows if "error" in row}):
+        print(f"room {room}: {error}")
     total = Counter(row["outcome"] for row in rows)
     print(f"{len(rooms)} rooms, {len(rows)} furniture objects, settings: {args.settings or 'as shipped'}")
     print("outcome: " + ", ".join(f"{o} {total[o]} ({total[o] / max(len(rows), 1):.2f})" for o in OUTCOMES))
@@ -73,6 +76,7 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
     import numpy as np
     import torch
 
+    from jsrte.errors import JsrteError
     from jsrte.experiments.scenes import ROOM_SETTINGS, draw_room
     from jsrte.fit.query import scan_candidates
     from jsrte.fit.scene import SCENE_SEGMENT
@@ -84,8 +88,12 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
     truth = json.loads((room_dir / "scene.json").read_text())
     labels = np.load(room_dir / "labels.npy")
     started = time.perf_counter()
-    cands = scan_candidates(room_dir / "scan.ply", rng=np.random.default_rng(0),
-                            segment=replace(SCENE_SEGMENT, **_settings(changes)))
+    try:
+        cands = scan_candidates(room_dir / "scan.ply", rng=np.random.default_rng(0),
+                                segment=replace(SCENE_SEGMENT, **_settings(changes)))
+    except JsrteError as exc:  # e.g. no floor: every object unseen
+        return [{"room": room, "class": entry["class"], "outcome": "unseen", "error": str(exc)}
+                for entry in truth["objects"] if entry["class"] != "box"], 0, time.perf_counter() - started
     seconds = time.perf_counter() - started
     segmented = cands.segmented
     if len(segmented.cloud.points) != len(labels):

@@ -112,6 +112,9 @@ class SegmentSettings:
     cut_samples: int = 2000
     cut_neighbours: int = 10
     """The normalized cut's graph: this many points, each joined to this many nearest."""
+    cut_vectors: int = 1
+    """Eigenvectors of the graph each tried for the normalized cut (:func:`normalized_cut`): 1,
+    the Fiedler vector alone."""
     cut_max: float = 0.02
     """Only a cut of at most this value is a neck between two objects (a cut through one
     object's surface costs more)."""
@@ -517,7 +520,8 @@ def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: Cl
     too_big = _too_big(points[cluster], heights[cluster], s)
     if whole is None and not too_big and s.cut_max_without_class is None:
         return None
-    side, value = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours)
+    side, value = normalized_cut(points[cluster], samples=s.cut_samples, neighbours=s.cut_neighbours,
+                                 vectors=s.cut_vectors)
     if s.connected_parts:
         side = _connected_sides(points[cluster], side, eps)
     parts = [cluster[side], cluster[~side]]
@@ -626,14 +630,16 @@ def _vertical_depth(points: np.ndarray, up: np.ndarray, tolerance_deg: float = 1
 
 
 def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int = 10,
-                   seed: int = 0) -> tuple[np.ndarray, float]:
+                   seed: int = 0, vectors: int = 1) -> tuple[np.ndarray, float]:
     """Two-way normalized cut (Shi and Malik 2000) of ``points`` (n, 3): mask (n,) of one side,
     and the cut's value (0: two parts apart; about 2 / neighbours when cut through a surface).
 
     Up to ``samples`` points (a fixed random subset) make a symmetric k-nearest-neighbour graph
-    with Gaussian weights of the distance; the Fiedler vector of its normalized Laplacian
-    (scipy) is cut at the threshold of lowest normalized cut; every point takes the side of its
-    nearest sample.
+    with Gaussian weights of the distance; each of the ``vectors`` leading non-trivial
+    eigenvectors of its normalized Laplacian (scipy; the first is the Fiedler vector) is cut at
+    the threshold of lowest normalized cut, and the lowest of those cuts is kept (where three
+    bodies touch, the Fiedler vector may cut through one of them and the next one between
+    them); every point takes the side of its nearest sample.
     """
     from pykdtree.kdtree import KDTree
     from scipy.sparse import diags
@@ -646,16 +652,18 @@ def normalized_cut(points: np.ndarray, *, samples: int = 2000, neighbours: int =
     normalized = scale @ graph @ scale
     try:
         start = np.random.default_rng(seed).uniform(0.5, 1.5, size=len(sub))
-        _, vectors = eigsh(normalized, k=2, which="LA", tol=1e-4, maxiter=5000, v0=start)
+        values, found = eigsh(normalized, k=min(vectors + 1, len(sub) - 1), which="LA", tol=1e-4,
+                              maxiter=5000, v0=start)
     except Exception:  # no convergence: no cut
         return np.ones(len(points), dtype=bool), float("inf")
-    fiedler = vectors[:, 0] / np.sqrt(degree)
     best, best_cut = None, np.inf
-    for threshold in np.quantile(fiedler, np.linspace(0.05, 0.95, 19)):
-        side = fiedler > threshold
-        value = _ncut_value(graph, degree, side)
-        if value < best_cut:
-            best, best_cut = side, value
+    for column in np.argsort(-values)[1:]:
+        embedding = found[:, column] / np.sqrt(degree)
+        for threshold in np.quantile(embedding, np.linspace(0.05, 0.95, 19)):
+            side = embedding > threshold
+            value = _ncut_value(graph, degree, side)
+            if value < best_cut:
+                best, best_cut = side, value
     if best is None:
         return np.ones(len(points), dtype=bool), float("inf")
     _, nearest = KDTree(sub).query(points, k=1)

@@ -184,15 +184,14 @@ class SceneResult:
                 "timing_s": self.timing}
 
 
-SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, cut_vectors=3)
+SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008)
 """The segmentation of a scene whose class is unknown: without a class shape to say where to cut,
 every neck of normalized cut 0.008 or less is cut (the whole staying a candidate beside its
 parts), and fits of the whole and of its parts decide (:func:`judge_splits`). On the tuning
 rooms (100-129 of seed 0) every cut between two objects touching each other scored 0.0074 or
-less; cuts within one object ran from 0.0007 to 0.02. Each cut is the lowest along the graph's
-first three non-trivial eigenvectors (``cut_vectors``): a chair against a sofa is cut from it
-where the Fiedler vector halves the sofa (segmentation of tuning rooms 100-169: 208 -> 227 of
-282 objects with a candidate of their own)."""
+less; cuts within one object ran from 0.0007 to 0.02. Cuts along three eigenvectors
+(``cut_vectors=3``) give more objects a candidate of their own but were not better once fitted
+(docs/clutter.md, Limits)."""
 
 
 SCENE_SCREEN = ScreenSettings(fit=replace(SCREEN_FIT, init_scale="both"),

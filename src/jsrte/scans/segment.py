@@ -114,7 +114,8 @@ class SegmentSettings:
     """The normalized cut's graph: this many points, each joined to this many nearest."""
     cut_vectors: int = 1
     """Eigenvectors of the graph each tried for the normalized cut (:func:`normalized_cut`): 1,
-    the Fiedler vector alone."""
+    the Fiedler vector alone. 3 gives a chair pushed against a sofa or a bed a candidate of its
+    own more often, with more candidates to screen (docs/clutter.md, Limits)."""
     cut_max: float = 0.02
     """Only a cut of at most this value is a neck between two objects (a cut through one
     object's surface costs more)."""

@@ -520,7 +520,6 @@ def test_leftover_points_are_clustered_again_as_candidates():
     assert all(c.summary["points"] == len(c.index) and c.rejected == "" for c in found)
 
 
-
 @pytest.fixture(scope="module")
 def chair_against_sofa(tmp_path_factory):
     """Tuning room 126 of seed 0 (a chair pushed against a sofa, one cluster), written as
@@ -532,7 +531,7 @@ def chair_against_sofa(tmp_path_factory):
 
 
 @pytest.mark.parametrize("vectors", [1, 3])
-def test_a_chair_against_a_sofa_gets_a_candidate_of_its_own_from_the_third_eigenvector(chair_against_sofa, vectors):
+def test_a_chair_against_a_sofa_gets_a_candidate_of_its_own_from_three_eigenvectors(chair_against_sofa, vectors):
     """With the Fiedler vector alone every neck the scene cuts leaves the chair with a piece of
     the sofa; with the next two eigenvectors tried too, one cut follows the gap between them:
     a candidate holds at least 70% of the chair's points at 85% purity or more."""

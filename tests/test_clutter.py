@@ -548,3 +548,17 @@ def test_a_chair_against_a_sofa_gets_a_candidate_of_its_own_from_three_eigenvect
         if held.mean() >= 0.85:
             best = max(best, held.sum() / is_chair.sum())
     assert (best >= 0.7) == (vectors == 3)
+
+
+def test_cameras_walked_nearly_along_a_line_still_give_the_up_axis():
+    rng = np.random.default_rng(3)
+    up = np.array([0.2, 0.9, -0.3]) / np.linalg.norm([0.2, 0.9, -0.3])
+    along = np.cross(up, [1.0, 0.0, 0.0])
+    along /= np.linalg.norm(along)
+    across = np.cross(up, along)
+    cameras = (np.outer(np.linspace(-1.8, 1.8, 6), along) + np.outer(rng.uniform(-0.2, 0.2, 6), across)
+               + np.outer(rng.normal(0.0, 0.01, 6), up) + 1.3 * up)
+    walk_up = camera_plane_normal(cameras)
+    assert walk_up is not None and abs(walk_up @ up) > np.cos(np.radians(3))
+    on_a_line = np.outer(np.linspace(-1.8, 1.8, 6), along) + np.outer(rng.normal(0.0, 0.01, 6), up + across)
+    assert camera_plane_normal(on_a_line) is None  # no plane to speak of: a line with noise around it

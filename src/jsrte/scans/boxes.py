@@ -21,6 +21,7 @@ it passes the same tests.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -100,6 +101,8 @@ class BoxEvidence:
     seen_through : lines of sight through the cuboid's inside per point; None when not measured
         (no cameras, or the cheaper tests failed)
     is_box : whether every test passed
+    plausible : whether the tests of its points alone passed (width, faces, top), the lines of
+        sight aside
     """
 
     cuboid: Cuboid
@@ -107,6 +110,7 @@ class BoxEvidence:
     top_coverage: float
     seen_through: float | None
     is_box: bool
+    plausible: bool = False
 
     def to_json(self) -> dict[str, Any]:
         """The evidence as scene.json records it."""
@@ -182,7 +186,7 @@ def box_evidence(points: np.ndarray, up: np.ndarray, floor_offset: float, seen: 
     if plausible and seen is not None and viewpoints is not None and len(viewpoints):
         through = _seen_through(cuboid, seen, np.asarray(viewpoints, float), settings) / len(points)
     is_box = plausible and through is not None and through <= settings.max_seen_through
-    return BoxEvidence(cuboid, on_faces, top_coverage, through, is_box)
+    return BoxEvidence(cuboid, on_faces, top_coverage, through, is_box, plausible)
 
 
 def candidate_boxes(cands: object, positions: list[int],
@@ -210,7 +214,8 @@ def candidate_boxes(cands: object, positions: list[int],
 
 def peel_box(points: np.ndarray, heights: np.ndarray, up: np.ndarray, seen: np.ndarray,
              viewpoints: np.ndarray, eps: float, min_rest: int,
-             settings: BoxSettings = BoxSettings()) -> tuple[np.ndarray, BoxEvidence] | None:
+             settings: BoxSettings = BoxSettings(),
+             accept: Callable[[np.ndarray], bool] | None = None) -> tuple[np.ndarray, BoxEvidence] | None:
     """The points of a box among ``points`` (n, 3) of one cluster standing on the floor
     (``heights`` (n,) above it, m; ``up`` (3,) its unit normal), as a mask (n,), with the
     evidence that it is one; None when the cluster holds none.
@@ -222,7 +227,10 @@ def peel_box(points: np.ndarray, heights: np.ndarray, up: np.ndarray, seen: np.n
     cluster's points within ``face_band_m`` of it are the box if they pass :func:`box_evidence`
     for that cuboid (a top's edges place it better than the points beside its faces, a
     neighbour's among them) with ``seen`` (m, 3), every point the sensor saw, and its
-    ``viewpoints`` (k, 3), and at least ``min_rest`` points are left beside it.
+    ``viewpoints`` (k, 3), and at least ``min_rest`` points are left beside it. Where given,
+    ``accept`` judges each cuboid whose points pass the tests of their own (a mask (n,) of the
+    box's points: True to go on) before its costly lines of sight; one it refuses is passed
+    over for the next (a sofa's base before the box against its arm).
     """
     from jsrte.geometry.point_ops import dbscan_labels
 
@@ -240,6 +248,10 @@ def peel_box(points: np.ndarray, heights: np.ndarray, up: np.ndarray, seen: np.n
             local = np.abs(cuboid.local(points))
             inside = np.all(local[:, :2] <= cuboid.extents[:2] / 2.0 + band, axis=1) & (heights <= level + band)
             if inside.sum() < PEEL_TOP_POINTS or (~inside).sum() < min_rest:
+                continue
+            if not box_evidence(points[inside], up, floor_offset, None, None, settings, cuboid).plausible:
+                continue
+            if accept is not None and not accept(inside):
                 continue
             evidence = box_evidence(points[inside], up, floor_offset, seen, viewpoints, settings, cuboid)
             if evidence.is_box:

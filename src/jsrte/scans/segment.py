@@ -482,30 +482,31 @@ def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up
 def _peel(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
           shape: ClassShape | None, s: SegmentSettings, eps: float,
           sight: Sight | None) -> tuple[np.ndarray, Any] | None:
-    """The mask (over ``cluster``'s indices) of a box it holds beside an object-sized rest, and
-    the box's evidence (``jsrte.scans.boxes.peel_box``), kept as a cut is: with a class, at a
-    weak neck (a cut value of at most ``cut_max``) and with the rest matching the class better
-    than the whole by ``split_margin``; without one, at a neck of at most
-    ``cut_max_without_class``. None where there is none, or where nothing can test it. A sofa's
-    base and a bed's mattress are upright cuboids seen solid too, but joined to the back or the
-    headboard that rises from them by more than a neck."""
+    """The mask (over ``cluster``'s indices) of the first box it holds beside an object-sized
+    rest, and the box's evidence (``jsrte.scans.boxes.peel_box``, each cuboid offered in turn),
+    kept as a cut is: with a class, at a weak neck (a cut value of at most ``cut_max``) and with
+    the rest matching the class better than the whole by ``split_margin``; without one, at a
+    neck of at most ``cut_max_without_class``. None where there is none, or where nothing can
+    test it. A sofa's base and a bed's mattress are upright cuboids seen solid too, but joined to
+    the back or the headboard that rises from them by more than a neck: refused, they are passed
+    over for the next cuboid (a box against the sofa's arm)."""
     from jsrte.scans.boxes import peel_box
 
     most = s.cut_max if shape is not None else s.cut_max_without_class
     if sight is None or most is None or len(cluster) < 2 * s.shred_points:
         return None
-    peeled = peel_box(points[cluster], heights[cluster], up, sight.seen, sight.viewpoints, eps, s.shred_points)
-    if peeled is None:
-        return None
-    rest = cluster[~peeled[0]]
-    if not _object_sized(points[rest], heights[rest], s):
-        return None
-    if shape is not None:
-        whole = class_score(points[cluster], heights[cluster], shape)
-        if class_score(points[rest], heights[rest], shape) >= whole - s.split_margin:
-            return None
-    value = cut_value(points[cluster], peeled[0], samples=s.cut_samples, neighbours=s.cut_neighbours)
-    return peeled if value <= most else None
+    whole = class_score(points[cluster], heights[cluster], shape)
+
+    def kept(box: np.ndarray) -> bool:
+        rest = cluster[~box]
+        if not _object_sized(points[rest], heights[rest], s):
+            return False
+        if shape is not None and class_score(points[rest], heights[rest], shape) >= whole - s.split_margin:
+            return False
+        return cut_value(points[cluster], box, samples=s.cut_samples, neighbours=s.cut_neighbours) <= most
+
+    return peel_box(points[cluster], heights[cluster], up, sight.seen, sight.viewpoints, eps, s.shred_points,
+                    accept=kept)
 
 
 def _cut(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, shape: ClassShape | None,

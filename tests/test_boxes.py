@@ -260,7 +260,8 @@ def test_a_sofa_whose_seat_passes_as_a_box_is_not_cut_there(tmp_path):
 def test_a_box_against_a_sofa_is_taken_out_after_the_sofa_base_is_passed_over(tmp_path):
     """Tuning room 115 of seed 0, a box pushed against a sofa (one cluster) in a scene of unknown
     class: the cuboid under the sofa's seat comes first and passes the box tests, but its cut
-    would not be kept; the box's cuboid, next, is taken out, and the sofa is left whole."""
+    would not be kept; the box's cuboid, next, is taken out, and the sofa is left whole (judging
+    the first cuboid alone, as before, took no box out of this room)."""
     from jsrte.experiments.scenes import ROOM_SETTINGS, draw_room
 
     room = draw_room(115, seed=0, settings=ROOM_SETTINGS)

@@ -11,7 +11,7 @@ import trimesh
 
 from jsrte.fit.query import scan_candidates
 from jsrte.fit.scene import SCENE_SEGMENT
-from jsrte.scans.boxes import BoxSettings, box_evidence, candidate_boxes, upright_cuboid
+from jsrte.scans.boxes import BoxSettings, box_evidence, candidate_boxes, reported_as_box, upright_cuboid
 from jsrte.scans.scene import SceneSettings, scan_room, write_room
 from jsrte.scans.segment import SegmentSettings
 from test_clutter import box, chair_shape, table
@@ -101,6 +101,22 @@ def test_a_box_seen_solid_is_a_box_and_a_table_seen_through_is_not(box_room):
     if board.seen_through is not None:  # its top and legs on the faces: the cameras see under it
         assert board.seen_through > BoxSettings().max_seen_through
     assert not evidence("box", None).is_box  # without the cameras nothing is seen through: no box
+
+
+@pytest.mark.parametrize(("length", "reported"), [(0.7, True), (1.9, False)])
+def test_a_cuboid_longer_than_any_box_is_left_to_the_models(length, reported):
+    """A solid cuboid 0.5 m wide and 0.55 m tall, seen on its top and sides and never seen
+    through: 0.7 m long it is a box; 1.9 m long it is a piece of furniture (a bed's mattress and
+    base), left to the models."""
+    solid = trimesh.creation.box(extents=[length, 0.55, 0.5])
+    solid.apply_translation([0.0, 0.275, 0.0])
+    points, faces = trimesh.sample.sample_surface(solid, 20_000, seed=0)
+    points = points[solid.face_normals[faces, 1] > -0.5]  # the bottom stands on the floor
+    evidence = box_evidence(points, np.array([0.0, 1.0, 0.0]), 0.0, None, None)
+    assert evidence.plausible and evidence.on_faces > 0.99 and evidence.top_coverage > 0.99
+    assert max(evidence.cuboid.extents[:2]) == pytest.approx(length, abs=0.03)
+    solid_box = replace(evidence, seen_through=0.0, is_box=True)  # as the cameras would find it
+    assert reported_as_box(solid_box) == reported and (length <= BoxSettings().max_length_m) == reported
 
 
 @pytest.mark.slow

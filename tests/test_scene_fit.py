@@ -190,7 +190,7 @@ def test_objects_fitted_at_once_match_those_fitted_in_turn(room_scan, short_fits
         torch.set_num_threads(before)
     at_once = fit_scene(room_scan, model="chair,table", preset="smoke", workers=2)
     assert torch.get_num_threads() == before
-    assert len(in_turn.fitted) == len(at_once.fitted) == 2
+    assert len(in_turn.fitted) == len(at_once.fitted) >= 2  # short fits may cut a candidate in parts
     for a, b in zip(in_turn.objects, at_once.objects, strict=True):
         assert a.model == b.model and _untimed(a.class_choice) == _untimed(b.class_choice)
         assert np.array_equal(a.result.transform.matrix(), b.result.transform.matrix())

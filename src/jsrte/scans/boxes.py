@@ -36,7 +36,8 @@ class BoxSettings:
     Chosen on the candidates of the tuning rooms (100-129 of seed 0): of the 16 candidates that
     were most of one box, 13 pass (the other three, with 0.42-0.62 of their points on the faces,
     are left to the models); every candidate of furniture fails, the nearest a bed's piece seen
-    through at 0.34 and a sofa whose points covered 0.56 of its cuboid's top.
+    through at 0.34 and a sofa whose points covered 0.56 of its cuboid's top. The length was
+    added on rooms 130-169, where six pieces of furniture longer than any box passed the others.
     """
 
     face_band_m: float = 0.03
@@ -50,6 +51,12 @@ class BoxSettings:
     min_width_m: float = 0.2
     """Both horizontal edges at least this long: a thinner slab is a piece (a headboard, a
     wall's remnant, a sofa's back), all of whose points lie near some face."""
+    max_length_m: float = 0.8
+    """A box reported as one has both horizontal edges at most this long: a longer cuboid seen
+    solid is a piece of furniture (a bed's mattress and base, a sofa's seat, a table), left to the
+    models (:func:`candidate_boxes`; one taken out of a cluster stays a candidate of its own). On
+    the tuning rooms (100-169 of seed 0) every box's longest edge was 0.30-0.70 m, every such
+    piece's 0.84-1.91 m."""
     inner_margin_m: float = 0.05
     """The inside crossed by no line of sight: the cuboid shrunk by this on every side."""
     max_seen_through: float = 0.25
@@ -194,7 +201,7 @@ def candidate_boxes(cands: object, positions: list[int],
     """The candidates at ``positions`` of ``cands`` (``jsrte.fit.query.ScanCandidates``) that
     are boxes, by position, with their evidence (:func:`box_evidence`, the scan's floor, points
     seen and cameras; a box the segmentation took out of a cluster keeps the evidence it was
-    taken out on); none without a floor."""
+    taken out on) and are short enough (:func:`reported_as_box`); none without a floor."""
     segmented = cands.segmented
     if segmented.floor is None:
         return {}
@@ -202,14 +209,19 @@ def candidate_boxes(cands: object, positions: list[int],
     seen = segmented.seen_points()
     found = {}
     for k in positions:
-        if cands.segmentation.candidates[k].box is not None:
-            found[k] = cands.segmentation.candidates[k].box
-            continue
-        evidence = box_evidence(points[cands.segmentation.candidates[k].index], segmented.up,
-                                float(segmented.floor.offset), seen, segmented.viewpoints, settings)
-        if evidence.is_box:
+        evidence = cands.segmentation.candidates[k].box
+        if evidence is None:
+            evidence = box_evidence(points[cands.segmentation.candidates[k].index], segmented.up,
+                                    float(segmented.floor.offset), seen, segmented.viewpoints, settings)
+        if reported_as_box(evidence, settings):
             found[k] = evidence
     return found
+
+
+def reported_as_box(evidence: BoxEvidence, settings: BoxSettings = BoxSettings()) -> bool:
+    """Whether a candidate of ``evidence`` is a box to report: it passed every test of
+    :func:`box_evidence` and no horizontal edge of its cuboid is longer than ``max_length_m``."""
+    return evidence.is_box and max(evidence.cuboid.extents[:2]) <= settings.max_length_m
 
 
 def peel_box(points: np.ndarray, heights: np.ndarray, up: np.ndarray, seen: np.ndarray,

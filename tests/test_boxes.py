@@ -17,12 +17,13 @@ from jsrte.scans.segment import SegmentSettings
 from test_clutter import box, chair_shape, table
 from test_scans import stand_in_chair
 
-ROOM = SceneSettings(scanner=replace(SceneSettings().scanner, width=240, height=180), walls=(1, 1),
-                     wall_gap_m=(0.2, 0.3), first_neighbour_gap_m=(0.3, 0.4), mixed_pixel_fraction=0.1)
-"""A wall, a box and a table well apart from it (one cluster each)."""
-
 BOX_EXTENTS = (0.6, 0.45, 0.4)
 """The box's edges (metres; the second is its height)."""
+
+ROOM = SceneSettings(scanner=replace(SceneSettings().scanner, width=240, height=180,
+                                     target_height_m=(BOX_EXTENTS[1], BOX_EXTENTS[1])),
+                     walls=(1, 1), wall_gap_m=(0.2, 0.3), first_neighbour_gap_m=(0.3, 0.4), mixed_pixel_fraction=0.1)
+"""A wall, a box at its own size and a table well apart from it (one cluster each)."""
 
 
 def standing_box() -> trimesh.Trimesh:

@@ -24,7 +24,8 @@ An object without a candidate of its own is seldom found by the scene's fits (on
 rooms 100-129: 71 of the 87 objects with one were found, 9 of the 24 without), so the share
 tells in seconds per room, not minutes, where a scene's detection recall stands. Printed: the counts
 overall and per class, the candidates per room (each costs a quick fit by every model) and the
-seconds per room.
+seconds per room. ``--without-cameras`` segments each scan as a scan from another tool: without
+its cameras (the JSON sidecar), its up axis given as ``--up`` would give it.
 """
 
 from __future__ import annotations
@@ -50,17 +51,21 @@ def main() -> None:
     parser.add_argument("--purity", type=float, default=0.85)
     parser.add_argument("--settings", default="", help="SegmentSettings changes: name=value,...")
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--without-cameras", action="store_true",
+                        help="segment each scan without its cameras (JSON sidecar), its up axis given")
     args = parser.parse_args()
 
     rooms = range(args.first, args.first + args.rooms)
-    jobs = [(args.rooms_dir / f"{r:03d}", r, args.seed, args.settings, args.share, args.purity) for r in rooms]
+    jobs = [(args.rooms_dir / f"{r:03d}", r, args.seed, args.settings, args.share, args.purity,
+             args.without_cameras) for r in rooms]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(_room, *zip(*jobs, strict=True)))
     rows = [row for room_rows, _, _ in results for row in room_rows]
     for room, error in sorted({(row["room"], row["error"]) for row in rows if "error" in row}):
         print(f"room {room}: {error}")
     total = Counter(row["outcome"] for row in rows)
-    print(f"{len(rooms)} rooms, {len(rows)} furniture objects, settings: {args.settings or 'as shipped'}")
+    print(f"{len(rooms)} rooms, {len(rows)} furniture objects, settings: {args.settings or 'as shipped'}"
+          + (", without cameras (up axis given)" if args.without_cameras else ""))
     print("outcome: " + ", ".join(f"{o} {total[o]} ({total[o] / max(len(rows), 1):.2f})" for o in OUTCOMES))
     for kind in sorted({row["class"] for row in rows}):
         counts = Counter(row["outcome"] for row in rows if row["class"] == kind)
@@ -69,10 +74,13 @@ def main() -> None:
           f"seconds per room {sum(s for _, _, s in results) / len(results):.1f} (one thread, {args.jobs} at once)")
 
 
-def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, purity: float
-          ) -> tuple[list[dict], int, float]:
+def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, purity: float,
+          without_cameras: bool = False) -> tuple[list[dict], int, float]:
     """The furniture of one room, each with its outcome (:data:`OUTCOMES`); the room's candidates
     the scene would screen; the seconds its segmentation took."""
+    import shutil
+    import tempfile
+
     import numpy as np
     import torch
 
@@ -89,8 +97,12 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
     labels = np.load(room_dir / "labels.npy")
     started = time.perf_counter()
     try:
-        cands = scan_candidates(room_dir / "scan.ply", rng=np.random.default_rng(0),
-                                segment=replace(SCENE_SEGMENT, **_settings(changes)))
+        with tempfile.TemporaryDirectory() as folder:
+            scan, up = room_dir / "scan.ply", None
+            if without_cameras:  # the scan alone, as another tool writes it, and its up axis
+                scan, up = Path(shutil.copy(scan, folder)), json.loads((room_dir / "scan.json").read_text())["up"]
+            cands = scan_candidates(scan, rng=np.random.default_rng(0), up=up,
+                                    segment=replace(SCENE_SEGMENT, **_settings(changes)))
     except JsrteError as exc:  # e.g. no floor: every object unseen
         return [{"room": room, "class": entry["class"], "outcome": "unseen", "error": str(exc)}
                 for entry in truth["objects"] if entry["class"] != "box"], 0, time.perf_counter() - started

@@ -106,6 +106,20 @@ def test_room_cameras_walk_level_so_the_floor_is_found(room):
     assert camera_plane_normal(scan.cameras[:3]) is None  # three points always lie on a plane
 
 
+def test_a_given_up_axis_finds_the_floor_of_a_room_without_its_cameras(room):
+    scan = room.scan
+    cloud = ScanCloud(scan.points, scan.normals)  # a room as another tool writes it: no cameras
+    with pytest.raises(JsrteError, match="no floor found"):  # walls around: the floor surrounds nothing
+        segment_floor(cloud.points, normals=cloud.normals, rng=np.random.default_rng(0))
+    floor = segment_floor(cloud.points, normals=cloud.normals, up=2.0 * scan.up, rng=np.random.default_rng(0))
+    assert floor.normal @ scan.up > np.cos(np.radians(1)) and floor.offset == pytest.approx(scan.floor_offset, abs=0.01)
+    with pytest.raises(JsrteError, match="under it along the up axis"):  # up given upside down
+        segment_floor(cloud.points, normals=cloud.normals, up=-scan.up, rng=np.random.default_rng(0))
+    prepared = prepare_scan(cloud, rng=np.random.default_rng(0), up=scan.up, shape=chair_shape())
+    assert prepared.floor is not None and (prepared.floor.height(prepared.points) > 0.01).all()
+    assert (room.labels[prepared.index] == 0).mean() > 0.95  # the chair, not the room
+
+
 def test_same_seed_same_room():
     settings = replace(SMALL, others=(1, 1), other_kinds=("box",))
     a, b = (scan_room(stand_in_chair(), rng=np.random.default_rng(7), settings=settings) for _ in range(2))

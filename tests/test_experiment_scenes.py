@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import importlib
 import json
 from dataclasses import replace
 
@@ -185,6 +186,37 @@ def test_the_rooms_are_fitted_with_the_arithmetic_asked_for(tmp_path, run_cli, m
     fits = list((out / "fits/003/objects").glob("*/fit.json"))
     assert fits and all(json.loads(f.read_text())["decoder_dtype"] == "float32" for f in fits)
     assert len(arithmetic) > len(fits) and set(arithmetic) == {"float32"}  # the screen's quick fits too
+
+
+def test_rooms_fitted_without_their_cameras_are_segmented_on_the_given_up_axis(tmp_path, monkeypatch):
+    from jsrte.errors import JsrteError
+    from jsrte.experiments import scenes
+    from jsrte.fit.query import scan_candidates
+    from jsrte.fit.scene import SCENE_SEGMENT
+    from jsrte.scans.io import read_scan_info
+
+    monkeypatch.setattr(scenes, "ROOM_SETTINGS", small_rooms())
+    seen = []
+
+    def segment_only(path, *, up, **_):  # the scene's segmentation of what run_room hands it, no fits
+        seen.append((path, up, scan_candidates(path, up=up, rng=np.random.default_rng(0), segment=SCENE_SEGMENT)))
+        raise JsrteError("segmented only", path)
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "fit_scene", segment_only)
+    config = scenes.ScenesConfig(rooms=1, first=3, objects=(2, 2), model="chair", cameras=False)
+    rows = scenes.run_room(3, config, tmp_path)
+    assert {r["outcome"] for r in rows} == {"missed"} and "segmented only" in rows[0]["scene_error"]
+    (path, up, candidates), = seen
+    room = json.loads((tmp_path / "rooms/003/scan.json").read_text())
+    assert path.name == "scan_without_cameras.ply" and read_scan_info(path) is None  # no cameras to read
+    assert up == pytest.approx(room["up"])
+    segmented = candidates.segmented
+    assert segmented.viewpoints is None and segmented.floor is not None
+    assert segmented.floor.offset == pytest.approx(room["floor"]["offset"], abs=0.02)
+    labels = np.load(tmp_path / "rooms/003/labels.npy")
+    assert (labels[segmented.index] == -1).mean() < 0.01  # the floor is gone, not clustered with the objects
+    held = [set(labels[segmented.index[c.index]]) for c in candidates.segmentation.candidates if not c.rejected]
+    assert {0, 1} <= set().union(*held)  # both objects stand in candidates
 
 
 def test_bad_input_is_a_one_line_error(tmp_path, run_cli):

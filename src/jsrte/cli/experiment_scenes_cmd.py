@@ -28,6 +28,9 @@ def scenes_command(
                                            "model) or a comma-separated list."),
     preset: str = typer.Option(SCENE_PRESET, help=f"Fit preset: {', '.join(PRESETS)}."),
     dtype: str = opt.DTYPE, leftovers: bool = opt.LEFTOVERS,
+    cameras: bool = typer.Option(True, "--cameras/--without-cameras",
+                                 help="Fit each scan with its cameras (its JSON sidecar), or without them and "
+                                      "with the up axis given, as a scan from another tool with --up."),
     threads: int = typer.Option(0, help="CPU threads (0: all cores)."),
     jobs: int = typer.Option(1, help="Rooms run in this many processes at once (threads shared among them)."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
@@ -63,7 +66,8 @@ def scenes_command(
         raise JsrteError(f"holds no run to resume ({CONFIG_NAME} is missing)", out)
     model_names(model)  # "auto" without any shipped model is an error now, not after the first room
     config = ScenesConfig(rooms=rooms, first=first, seed=seed, preset=preset, dtype=dtype, model=model,
-                          objects=_count_range(objects, "objects", 2, 9), leftovers=leftovers)
+                          objects=_count_range(objects, "objects", 2, 9), leftovers=leftovers,
+                          cameras=cameras)
     set_threads(threads)
     with output_dir(out, overwrite=True, keep=lambda folder: (folder / OBJECTS_NAME).is_file()) as folder:
         if overwrite:

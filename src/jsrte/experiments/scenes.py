@@ -70,6 +70,9 @@ class ScenesConfig:
     box_share: float = BOX_SHARE
     leftovers: bool = False
     """Also fit what the found objects' fits leave unexplained (``jsrte.fit.scene.fit_scene``)."""
+    cameras: bool = True
+    """Fit each room's scan with its cameras (the JSON sidecar); False: as a scan from another tool
+    without them, the up axis given (``--up``), its file ``rooms/NNN/scan_without_cameras.ply``."""
 
     @property
     def indices(self) -> list[int]:
@@ -147,11 +150,14 @@ def run_room(room: int, config: ScenesConfig, out: Path) -> list[dict]:
     drawn = draw_room(room, seed=config.seed, objects=config.objects, box_share=config.box_share,
                       settings=ROOM_SETTINGS)
     scan = write_room(drawn, out / "rooms" / f"{room:03d}", seed=config.seed)
+    up = None
+    if not config.cameras:
+        scan, up = _without_cameras(scan), tuple(float(v) for v in drawn.scan.up)
     truth = true_objects(drawn)
     started = time.perf_counter()
     try:
         scene = fit_scene(scan, model=config.model, preset=config.preset, seed=config.seed, dtype=config.dtype,
-                          leftovers=config.leftovers)
+                          leftovers=config.leftovers, up=up)
     except JsrteError as exc:  # no object left: every true object is missed
         scene, failure = None, str(exc)
     seconds = time.perf_counter() - started
@@ -175,6 +181,15 @@ def run_room(room: int, config: ScenesConfig, out: Path) -> list[dict]:
                    quick_fit_seconds=None if scene is None else scene.timing.get("quick fits"),
                    objects_found=len(found_objects), scene_error=failure)
     return [_ordered(r) for r in rows]
+
+
+def _without_cameras(scan: Path) -> Path:
+    """A copy of the room's ``scan`` (PLY) without its JSON sidecar, so without its cameras."""
+    import shutil
+
+    copy = scan.with_name(f"{scan.stem}_without_cameras.ply")
+    shutil.copyfile(scan, copy)
+    return copy
 
 
 def _found_centre(obj: object) -> np.ndarray:
@@ -328,7 +343,8 @@ def summary_markdown(summary: dict, table: dict, config: ScenesConfig) -> str:
     first, last = config.indices[0], config.indices[-1]
     lines = [f"Scene experiment: rooms {first}–{last} of seed {config.seed}, {config.objects[0]}–"
              f"{config.objects[1]} held-out objects each (evaluation set), model {config.model}, preset "
-             f"{config.preset}. A found object matches a true one within 0.3 of its bounding-sphere radius; "
+             f"{config.preset}{'' if config.cameras else ', scans without their cameras (up axis given)'}. "
+             "A found object matches a true one within 0.3 of its bounding-sphere radius; "
              "found objects on boxes are neither hits nor false positives.", "", "| | |", "|---|---|"]
     for label, key in SUMMARY_LABELS:
         if key is None and label.startswith("boxes"):

@@ -134,7 +134,7 @@ class PreparedScan:
 
 def segment_floor(
     points: np.ndarray, *, rng: np.random.Generator, normals: np.ndarray | None = None,
-    viewpoints: np.ndarray | None = None, distance_m: float | None = None,
+    viewpoints: np.ndarray | None = None, up: np.ndarray | None = None, distance_m: float | None = None,
     settings: PrepareSettings = PrepareSettings(),
 ) -> Floor:
     """Find the floor: the biggest RANSAC plane (:func:`jsrte.geometry.planes.ransac_plane`) that is plausibly a floor.
@@ -142,7 +142,10 @@ def segment_floor(
     A plausible floor holds at least ``floor_min_fraction`` of the points, has (almost) all
     other points on one side, surrounds the object, and was seen from the object's side
     (its points' ``normals``, which face the sensor, point to that side; the ``viewpoints``
-    lie on it): a table top or a side of the object fails that. Up to ``floor_candidates``
+    lie on it): a table top or a side of the object fails that. Where the up axis is known
+    (``up`` (3,) given, or cameras carried level: :func:`camera_plane_normal`), the floor is
+    instead the biggest plane level with it that has the points above it: in a room, walls and
+    other objects stand around the object and hide the floor. Up to ``floor_candidates``
     planes are tried, biggest first. The plane is refit to its inliers by least squares; its
     normal points to the side where the object lies.
 
@@ -152,6 +155,7 @@ def segment_floor(
     rng : seeds the RANSAC
     normals : (n, 3) float, sensor-facing normals if known
     viewpoints : (k, 3) float, camera centres if known
+    up : (3,) float, the up axis if known (any length)
     distance_m : inlier distance (default ``settings.floor_distance_m``)
 
     Raises ``JsrteError`` saying no floor was found (and suggesting ``--up``) otherwise.
@@ -162,7 +166,7 @@ def segment_floor(
         raise JsrteError(f"no floor found: only {len(points)} points; {UP_HINT}")
     remaining = np.arange(len(points))
     reasons = []
-    walk_up = camera_plane_normal(viewpoints)
+    walk_up = camera_plane_normal(viewpoints) if up is None else np.asarray(up, float) / np.linalg.norm(up)
     for _ in range(settings.floor_candidates):
         if len(remaining) < 3:
             break
@@ -170,7 +174,8 @@ def segment_floor(
         if len(found) < 3:
             break
         normal, offset = refit_plane(points, normal, offset, distance)
-        floor, reason = _as_floor(points, normal, offset, distance, settings, walk_up=walk_up)
+        floor, reason = _as_floor(points, normal, offset, distance, settings, walk_up=walk_up,
+                                  up_known=up is not None)
         if floor is not None:
             reason = _sensor_side_objection(floor, points, normals, viewpoints)
         if floor is not None and not reason:
@@ -220,12 +225,15 @@ def camera_plane_normal(viewpoints: np.ndarray | None, *, min_spread_m: float = 
 
 
 def _as_floor(points: np.ndarray, normal: np.ndarray, offset: float, distance: float,
-              s: PrepareSettings, *, walk_up: np.ndarray | None = None) -> tuple[Floor | None, str]:
+              s: PrepareSettings, *, walk_up: np.ndarray | None = None,
+              up_known: bool = False) -> tuple[Floor | None, str]:
     """The plane as a Floor (normal towards the object) if plausible, else None and why.
 
-    When the viewpoints were carried level (``walk_up`` (3,), the normal of their plane), the
-    floor is the plane within ``floor_up_tolerance_deg`` of level, whether or not it surrounds
-    the object (in a room, walls and other objects stand around it and hide the floor)."""
+    When the up axis is known up to its sign (``walk_up`` (3,): the normal of the plane the
+    viewpoints were carried level in) or with it (``up_known``: the points must lie above the
+    plane along it), the floor is the plane within ``floor_up_tolerance_deg`` of level, whether
+    or not it surrounds the object (in a room, walls and other objects stand around it and hide
+    the floor)."""
     height = points @ normal - offset
     inliers = np.abs(height) < distance
     if inliers.mean() < s.floor_min_fraction:
@@ -242,7 +250,10 @@ def _as_floor(points: np.ndarray, normal: np.ndarray, offset: float, distance: f
     if walk_up is not None:
         tilt = float(np.degrees(np.arccos(min(1.0, abs(float(walk_up @ normal))))))
         if tilt > s.floor_up_tolerance_deg:
-            return None, f"a plane tilted {tilt:.0f} degrees from the level of the viewpoints"
+            level = "the up axis" if up_known else "the level of the viewpoints"
+            return None, f"a plane tilted {tilt:.0f} degrees from {level}"
+        if up_known and normal @ walk_up < 0:
+            return None, "a plane with the points under it along the up axis (a top or a ceiling)"
         return Floor(normal=normal, offset=float(offset), inliers=inliers), ""
     sectors = _sectors_around(points[inliers], obj, normal, s.floor_sectors)
     if sectors < s.floor_min_sectors:
@@ -610,7 +621,7 @@ def _floor_and_up(cloud: ScanCloud, up: np.ndarray | None, viewpoints: np.ndarra
     up = up / np.linalg.norm(up)
     try:
         floor = segment_floor(cloud.points, rng=rng, normals=cloud.normals,
-                              viewpoints=viewpoints, settings=s)
+                              viewpoints=viewpoints, up=up, settings=s)
     except JsrteError:
         return None, up
     if floor.normal @ up < np.cos(np.radians(s.floor_up_tolerance_deg)):

@@ -236,6 +236,17 @@ def test_bad_input_is_a_one_line_error(tmp_path, run_cli):
     assert code != 0 and "resume" in err
 
 
+def test_a_run_recorded_before_a_setting_existed_resumes_with_its_default(tmp_path):
+    from jsrte.errors import JsrteError
+    from jsrte.experiments.scenes import CONFIG_NAME, ScenesConfig, _resumed_rows
+
+    older = {k: v for k, v in ScenesConfig().to_json().items() if k not in ("cameras", "leftovers")}
+    (tmp_path / CONFIG_NAME).write_text(json.dumps(older))
+    assert _resumed_rows(ScenesConfig(rooms=5), tmp_path) == []  # no objects.csv yet: nothing kept
+    with pytest.raises(JsrteError, match=r"other settings \(cameras\)"):  # the default was with the cameras
+        _resumed_rows(ScenesConfig(cameras=False), tmp_path)
+
+
 def test_resuming_a_damaged_run_is_a_one_line_error(tmp_path, run_cli):
     run = tmp_path / "run"
     run.mkdir()

@@ -373,13 +373,17 @@ def _write_summary(rows: list[dict], summary: dict, table: dict, config: ScenesC
 
 
 def _resumed_rows(config: ScenesConfig, out: Path) -> list[dict]:
-    """The rows of objects.csv in ``out`` (typed), after checking config.json matches ``config``."""
+    """The rows of objects.csv in ``out`` (typed), after checking config.json matches ``config``
+    (a setting config.json does not record, from before the setting existed, had its default)."""
     path = out / CONFIG_NAME
     if path.is_file():
         try:
             recorded = json.loads(path.read_text())
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
             raise JsrteError(f"unreadable ({error})", path) from error
+        if not isinstance(recorded, dict):
+            raise JsrteError("unreadable (not a JSON object)", path)
+        recorded = ScenesConfig().to_json() | recorded
         keep = {k: v for k, v in recorded.items() if k not in ("rooms", "first")}
         mine = {k: v for k, v in config.to_json().items() if k not in ("rooms", "first")}
         if keep != mine:

@@ -619,14 +619,11 @@ def _floor_and_up(cloud: ScanCloud, up: np.ndarray | None, viewpoints: np.ndarra
     if not np.linalg.norm(up) > 0:
         raise JsrteError("the up axis must be a non-zero vector")
     up = up / np.linalg.norm(up)
-    try:
-        floor = segment_floor(cloud.points, rng=rng, normals=cloud.normals,
-                              viewpoints=viewpoints, up=up, settings=s)
+    try:  # a floor found along ``up`` is level with it, the points above it
+        return segment_floor(cloud.points, rng=rng, normals=cloud.normals,
+                             viewpoints=viewpoints, up=up, settings=s), up
     except JsrteError:
         return None, up
-    if floor.normal @ up < np.cos(np.radians(s.floor_up_tolerance_deg)):
-        return None, up
-    return floor, up
 
 
 def _above_floor(points: np.ndarray, floor: Floor, s: PrepareSettings) -> np.ndarray:

@@ -26,6 +26,10 @@ tells in seconds per room, not minutes, where a scene's detection recall stands.
 overall and per class, the candidates per room (each costs a quick fit by every model) and the
 seconds per room. ``--without-cameras`` segments each scan as a scan from another tool: without
 its cameras (the JSON sidecar), its up axis given as ``--up`` would give it.
+
+Also printed: the candidates the scene would report as boxes (``jsrte.scans.boxes.candidate_boxes``,
+before any fit), each counted as the true box or piece of furniture most of its points are: how
+many of the rooms' boxes are reported, and how many candidates of furniture are taken for one.
 """
 
 from __future__ import annotations
@@ -60,7 +64,8 @@ def main() -> None:
              args.without_cameras) for r in rooms]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(_room, *zip(*jobs, strict=True)))
-    rows = [row for room_rows, _, _ in results for row in room_rows]
+    rows = [row for room_rows, _, _ in results for row in room_rows if row["class"] != "box"]
+    boxes = [row for room_rows, _, _ in results for row in room_rows if row["class"] == "box"]
     for room, error in sorted({(row["room"], row["error"]) for row in rows if "error" in row}):
         print(f"room {room}: {error}")
     total = Counter(row["outcome"] for row in rows)
@@ -70,6 +75,9 @@ def main() -> None:
     for kind in sorted({row["class"] for row in rows}):
         counts = Counter(row["outcome"] for row in rows if row["class"] == kind)
         print(f"  {kind}: " + ", ".join(f"{o} {counts[o]}" for o in OUTCOMES if counts[o]))
+    found = sum(row["reported_as_box"] > 0 for row in boxes)
+    taken = sum(row.get("reported_as_box", 0) for row in rows)
+    print(f"boxes reported: {found} of {len(boxes)} boxes; candidates of furniture reported as a box: {taken}")
     print(f"candidates per room {sum(n for _, n, _ in results) / len(results):.1f}, "
           f"seconds per room {sum(s for _, _, s in results) / len(results):.1f} (one thread, {args.jobs} at once)")
 
@@ -88,6 +96,7 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
     from jsrte.experiments.scenes import ROOM_SETTINGS, draw_room
     from jsrte.fit.query import scan_candidates
     from jsrte.fit.scene import SCENE_SEGMENT
+    from jsrte.scans.boxes import candidate_boxes
     from jsrte.scans.scene import write_room
 
     torch.set_num_threads(1)
@@ -104,8 +113,8 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
             cands = scan_candidates(scan, rng=np.random.default_rng(0), up=up,
                                     segment=replace(SCENE_SEGMENT, **_settings(changes)))
     except JsrteError as exc:  # e.g. no floor: every object unseen
-        return [{"room": room, "class": entry["class"], "outcome": "unseen", "error": str(exc)}
-                for entry in truth["objects"] if entry["class"] != "box"], 0, time.perf_counter() - started
+        return [{"room": room, "class": entry["class"], "outcome": "unseen", "error": str(exc),
+                 "reported_as_box": 0} for entry in truth["objects"]], 0, time.perf_counter() - started
     seconds = time.perf_counter() - started
     segmented = cands.segmented
     if len(segmented.cloud.points) != len(labels):
@@ -115,9 +124,14 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
         index = segmented.index[segmented.segmentation.candidates[k].index]
         values, counts = np.unique(labels[index], return_counts=True)
         held.append(dict(zip(values.tolist(), counts.tolist(), strict=True)))
-    rows = [{"room": room, "class": entry["class"],
+    as_box = Counter()  # object index -> candidates reported as a box that are mostly it
+    possible = cands.possible()
+    for k in candidate_boxes(cands, possible):
+        counts = held[possible.index(k)]
+        as_box[max(counts, key=counts.__getitem__)] += 1
+    rows = [{"room": room, "class": entry["class"], "reported_as_box": as_box[entry["index"]],
              "outcome": _outcome(entry["index"], int((labels == entry["index"]).sum()), held, share, purity)}
-            for entry in truth["objects"] if entry["class"] != "box"]
+            for entry in truth["objects"]]
     return rows, len(held), seconds
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -101,23 +102,50 @@ def test_a_box_seen_solid_is_a_box_and_a_table_seen_through_is_not(box_room):
     assert not board.is_box
     if board.seen_through is not None:  # its top and legs on the faces: the cameras see under it
         assert board.seen_through > BoxSettings().max_seen_through
-    assert not evidence("box", None).is_box  # without the cameras nothing is seen through: no box
+    # Without the cameras: nothing is seen through, but the floor under the box was seen nowhere,
+    # and the floor under the table was.
+    box, board = evidence("box", None), evidence("table", None)
+    assert box.seen_through is None and box.floor_seen_under <= BoxSettings().max_floor_seen_under and box.is_box
+    assert board.plausible and board.seen_through is None and not board.is_box
+    assert board.floor_seen_under > 0.5  # its top and legs on the faces, the floor seen under it
 
 
-@pytest.mark.parametrize(("length", "reported"), [(0.7, True), (1.9, False)])
-def test_a_cuboid_longer_than_any_box_is_left_to_the_models(length, reported):
-    """A solid cuboid 0.5 m wide and 0.55 m tall, seen on its top and sides and never seen
+def test_a_scan_without_its_cameras_reports_its_box_by_the_floor_hidden_under_it(box_room, tmp_path):
+    """The box room as another tool writes it (no JSON sidecar: no cameras), its up axis given:
+    the box is reported, the table (the floor seen under its top) is not."""
+    import shutil
+
+    scan = Path(shutil.copy(box_room, tmp_path / "scan.ply"))
+    up = json.loads(box_room.with_suffix(".json").read_text())["up"]
+    cands = scan_candidates(scan, rng=np.random.default_rng(0), up=up, segment=SCENE_SEGMENT)
+    assert cands.segmented.viewpoints is None
+    found = candidate_boxes(cands, cands.possible())
+    points = np.asarray(cands.segmented.cloud.points, float)
+    centres = true_centres(box_room)
+    assert len(found) == 1
+    (k, evidence), = found.items()
+    own = points[cands.segmented.index[cands.segmentation.candidates[k].index]]
+    assert np.linalg.norm(own.mean(axis=0) - centres["box"][0]) < np.linalg.norm(own.mean(axis=0) - centres["table"][0])
+    assert evidence.seen_through is None and evidence.floor_seen_under <= BoxSettings().max_floor_seen_under
+    assert evidence.to_json()["floor_seen_under"] == pytest.approx(evidence.floor_seen_under, abs=1e-4)
+
+
+@pytest.mark.parametrize(("extents", "reported"), [((0.7, 0.55, 0.5), True), ((1.9, 0.55, 0.5), False),
+                                                   ((0.3, 0.95, 0.28), False)])
+def test_a_cuboid_longer_than_any_box_is_left_to_the_models(extents, reported):
+    """A solid cuboid (width, height, depth in metres), seen on its top and sides and never seen
     through: 0.7 m long it is a box; 1.9 m long it is a piece of furniture (a bed's mattress and
-    base), left to the models."""
-    solid = trimesh.creation.box(extents=[length, 0.55, 0.5])
-    solid.apply_translation([0.0, 0.275, 0.0])
+    base), and so it is 0.95 m tall (a sofa's arm), left to the models."""
+    solid = trimesh.creation.box(extents=extents)
+    solid.apply_translation([0.0, extents[1] / 2.0, 0.0])
     points, faces = trimesh.sample.sample_surface(solid, 20_000, seed=0)
     points = points[solid.face_normals[faces, 1] > -0.5]  # the bottom stands on the floor
     evidence = box_evidence(points, np.array([0.0, 1.0, 0.0]), 0.0, None, None)
     assert evidence.plausible and evidence.on_faces > 0.99 and evidence.top_coverage > 0.99
-    assert max(evidence.cuboid.extents[:2]) == pytest.approx(length, abs=0.03)
+    assert sorted(evidence.cuboid.extents[:2]) == pytest.approx(sorted(extents[::2]), abs=0.03)
+    assert evidence.cuboid.extents[2] == pytest.approx(extents[1], abs=0.03)
     solid_box = replace(evidence, seen_through=0.0, is_box=True)  # as the cameras would find it
-    assert reported_as_box(solid_box) == reported and (length <= BoxSettings().max_length_m) == reported
+    assert reported_as_box(solid_box) == reported and (max(extents) <= BoxSettings().max_length_m) == reported
 
 
 @pytest.mark.slow
@@ -195,28 +223,34 @@ def chair_beside(kind: str, mesh: trimesh.Trimesh, tmp_path, gap_m: tuple[float,
     object)."""
     from pykdtree.kdtree import KDTree
 
+    import shutil
+
     room = scan_room(stand_in_chair(), rng=np.random.default_rng(3), target_kind="chair",
                      settings=replace(TOUCHING, first_neighbour_gap_m=gap_m), others=[(kind, mesh, "test")])
     path = write_room(room, tmp_path, seed=3)
+    (tmp_path / "alone").mkdir()
+    alone = Path(shutil.copy(path, tmp_path / "alone"))  # as another tool writes it: no cameras
 
-    def segmented(peel: bool, with_class: bool = True):
+    def segmented(peel: bool, with_class: bool = True, cameras: bool = True):
         settings = replace(SegmentSettings() if with_class else SCENE_SEGMENT, peel_boxes=peel)
-        cands = scan_candidates(path, rng=np.random.default_rng(0), shape=chair_shape() if with_class else None,
-                                segment=settings)
+        cands = scan_candidates(path if cameras else alone, rng=np.random.default_rng(0),
+                                shape=chair_shape() if with_class else None, segment=settings,
+                                up=None if cameras else room.scan.up)
+        assert (cands.segmented.viewpoints is not None) == cameras
         points = np.asarray(cands.segmented.cloud.points, float)[cands.segmented.index]
         return cands, room.labels[KDTree(room.scan.points).query(points, k=1)[1]]
 
     return segmented
 
 
-@pytest.mark.parametrize("with_class", [True, False])
-def test_a_box_the_chair_touches_is_taken_out_of_their_cluster(tmp_path, with_class):
+@pytest.mark.parametrize(("with_class", "cameras"), [(True, True), (False, True), (False, False)])
+def test_a_box_the_chair_touches_is_taken_out_of_their_cluster(tmp_path, with_class, cameras):
     """A box higher than the chair's seat, 3-4 cm from it (one cluster): the box under the
     cluster's open top at its height is taken out, the chair is what is left, and the whole
     stays a candidate; with the class unknown (a scene) too, where the box keeps the evidence it
-    was taken out on."""
+    was taken out on; and without the cameras, the floor under the box seen nowhere."""
     segmented = chair_beside("box", box((0.5, 0.6, 0.5)), tmp_path, gap_m=(0.03, 0.04))
-    found, labels = segmented(peel=True, with_class=with_class)
+    found, labels = segmented(peel=True, with_class=with_class, cameras=cameras)
     segmentation = found.segmentation
     cands = segmentation.candidates
     whole = next(c for c in cands if c.summary.get("box_taken_out"))
@@ -231,14 +265,18 @@ def test_a_box_the_chair_touches_is_taken_out_of_their_cluster(tmp_path, with_cl
     assert segmentation.to_json()["candidates"][next(k for k, c in enumerate(cands) if c is whole)]["box_taken_out"]
     at = next(k for k in whole.parts if cands[k] is box_part)
     assert box_part.box is not None and candidate_boxes(found, [at]) == {at: box_part.box}
-    unpeeled, _ = segmented(peel=False, with_class=with_class)
+    evidence = box_part.summary["box"]
+    assert (evidence["seen_through"] is None) != cameras and (evidence["floor_seen_under"] is None) == cameras
+    unpeeled, _ = segmented(peel=False, with_class=with_class, cameras=cameras)
     assert not any(c.summary.get("box_taken_out") for c in unpeeled.segmentation.candidates)
 
 
-def test_a_table_the_chair_touches_is_not_taken_out_as_a_box(tmp_path):
-    """Under a table's top the cameras see the floor and the wall: no box to take out."""
+@pytest.mark.parametrize("cameras", [True, False])
+def test_a_table_the_chair_touches_is_not_taken_out_as_a_box(tmp_path, cameras):
+    """Under a table's top the cameras see the floor and the wall: no box to take out; nor
+    without the cameras, the floor seen under the top."""
     segmented = chair_beside("table", table(), tmp_path)
-    found, labels = segmented(peel=True)
+    found, labels = segmented(peel=True, cameras=cameras)
     assert any({0, 1} <= set(labels[c.index]) for c in found.segmentation.candidates)  # one cluster
     assert not any(c.summary.get("box_taken_out") for c in found.segmentation.candidates)
 

@@ -96,15 +96,19 @@ def test_a_scenes_boxes_are_shown_as_their_cuboids(tmp_path):
                                                       "extents": [0.6, -1, 0.5]}}
     record = {"input": str(scan), "floor": {"up": [0, 1, 0], "offset": 0.0},
               "objects": [{"index": 0, "status": "unexplained"}, box, broken]}
+    unseen_floor = dict(box, index=3, box_evidence={"seen_through": None, "floor_seen_under": 0.04})
+    record["objects"].append(unseen_floor)  # told without cameras: by the floor hidden under it
     (scene / "scene.json").write_text(json.dumps(record))
     found = find_fits(scene)  # no fitted object: the boxes alone make it a scene
-    assert found.kind == "scene" and [e.name for e in found.entries] == ["01", "02"]
+    assert found.kind == "scene" and [e.name for e in found.entries] == ["01", "02", "03"]
     item = load_item(found.entries[0])
     assert item.fit_read and item.problems == [] and item.scan is not None
     assert item.mesh.volume == pytest.approx(0.6 * 0.4 * 0.5)
     assert np.allclose(item.mesh.bounds.mean(axis=0), [2.0, 0.25, 1.0])
     assert np.allclose(item.floor.normal, [0, 1, 0]) and item.numbers["class"] == "box"
-    assert item.numbers["size (m)"] == "0.60 × 0.40 × 0.50"
+    assert item.numbers["size (m)"] == "0.60 × 0.40 × 0.50" and item.numbers["seen through"] == "0.020 per point"
+    told_by_floor = load_item(found.entries[2]).numbers
+    assert "seen through" not in told_by_floor and told_by_floor["floor seen under"] == "0.04 of its footprint"
     bad = load_item(found.entries[1])
     assert not bad.fit_read and "box 02 is not readable" in bad.problems[0]
 

@@ -7,12 +7,13 @@ A candidate is a box when it is an upright cuboid seen solid:
   within ``face_band_m``;
 - they cover its top;
 - no line of sight from a camera to anything it saw (floor, walls, other objects, the candidate
-  itself) passes through the cuboid's inside, ``inner_margin_m`` within its faces.
+  itself) passes through the cuboid's inside, ``inner_margin_m`` within its faces; without
+  known cameras, the floor under it was seen nowhere: a solid box hides the floor it stands on
+  from every viewpoint.
 
 A table's points also lie on the faces of its cuboid (its top, its legs at the corners) and
 cover its top, but the cameras see the floor and the wall through the space under it; a sofa's
 seat and a bed's mattress lie inside their cuboids (the back and the headboard stand higher).
-Without known cameras the third test cannot be made and nothing is a box.
 
 A box can also hide inside a bigger cluster, touching the chair it half hides: :func:`peel_box`
 looks for the cuboid under each dense horizontal level of the cluster and takes it out where
@@ -52,16 +53,24 @@ class BoxSettings:
     """Both horizontal edges at least this long: a thinner slab is a piece (a headboard, a
     wall's remnant, a sofa's back), all of whose points lie near some face."""
     max_length_m: float = 0.8
-    """A box reported as one has both horizontal edges at most this long: a longer cuboid seen
-    solid is a piece of furniture (a bed's mattress and base, a sofa's seat, a table), left to the
-    models (:func:`candidate_boxes`; one taken out of a cluster stays a candidate of its own). On
-    the tuning rooms (100-169 of seed 0) the longest edge of every box that passed the tests was
-    0.36-0.70 m, of every such piece 0.84-1.91 m."""
+    """A box reported as one has every edge at most this long: a longer cuboid seen solid is a
+    piece of furniture (a bed's mattress and base, a sofa's seat, a table; standing up, a sofa's
+    arm), left to the models (:func:`candidate_boxes`; one taken out of a cluster stays a
+    candidate of its own). On the tuning rooms (100-169 of seed 0) the longest horizontal edge of
+    every box that passed the tests was 0.36-0.70 m, of every such piece 0.84-1.91 m; every box
+    stood at most 0.71 m tall, a sofa's arm that came near the tests 0.91 m."""
     inner_margin_m: float = 0.05
     """The inside crossed by no line of sight: the cuboid shrunk by this on every side."""
     max_seen_through: float = 0.25
     """At most this many lines of sight through the inside per point of the candidate (noise
     and flying pixels; on the tuning rooms boxes 0.0-0.2, tables 0.44 and more)."""
+    floor_band_m: float = 0.03
+    """Without cameras: a point of the scan within this of the floor's plane is floor."""
+    max_floor_seen_under: float = 0.2
+    """Without cameras: at most this share of the footprint (``cell_m`` cells, ``inner_margin_m``
+    within its edges) holds a point of the floor. On the tuning rooms (100-169 of seed 0)
+    boxes 0.0-0.13, the furniture that passed the other tests 0.29 (a sofa's arm, 8 floor points
+    under it) and 0.96-1.0 (chairs and small tables, seen under their seat or top)."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +116,8 @@ class BoxEvidence:
     top_coverage : share of the top's cells holding a point on the top
     seen_through : lines of sight through the cuboid's inside per point; None when not measured
         (no cameras, or the cheaper tests failed)
+    floor_seen_under : without cameras, the share of its footprint where the floor was seen;
+        None when not measured (cameras known, or the cheaper tests failed)
     is_box : whether every test passed
     plausible : whether the tests of its points alone passed (width, faces, top), the lines of
         sight aside
@@ -118,12 +129,14 @@ class BoxEvidence:
     seen_through: float | None
     is_box: bool
     plausible: bool = False
+    floor_seen_under: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The evidence as scene.json records it."""
         through = None if self.seen_through is None else round(self.seen_through, 4)
+        under = None if self.floor_seen_under is None else round(self.floor_seen_under, 4)
         return {"on_faces": round(self.on_faces, 4), "top_coverage": round(self.top_coverage, 4),
-                "seen_through": through}
+                "seen_through": through, "floor_seen_under": under}
 
 
 YAW_STEPS = 90
@@ -178,8 +191,9 @@ def box_evidence(points: np.ndarray, up: np.ndarray, floor_offset: float, seen: 
                  cuboid: Cuboid | None = None) -> BoxEvidence:
     """How much the candidate of ``points`` (n, 3) looks like a box (the module's tests), on a
     floor ``up . x = floor_offset``; ``seen`` (m, 3): every point the sensor saw, ``viewpoints``
-    (k, 3): the cameras (the lines of sight are measured only where both are given and the
-    cheaper tests pass). The box's ``cuboid`` is the points' upright cuboid unless given."""
+    (k, 3): the cameras (the lines of sight are measured where both are given, the floor under
+    it where only ``seen`` is, and either only where the cheaper tests pass). The box's
+    ``cuboid`` is the points' upright cuboid unless given."""
     cuboid = upright_cuboid(points, up, floor_offset) if cuboid is None else cuboid
     local = cuboid.local(points)
     half = cuboid.extents / 2.0
@@ -189,11 +203,14 @@ def box_evidence(points: np.ndarray, up: np.ndarray, floor_offset: float, seen: 
     top_coverage = _top_coverage(local[gap[:, 2] < settings.face_band_m, :2], half[:2], settings.cell_m)
     plausible = (min(cuboid.extents[:2]) >= settings.min_width_m and on_faces >= settings.min_on_faces
                  and top_coverage >= settings.min_top_coverage)
-    through = None
+    through = under = None
     if plausible and seen is not None and viewpoints is not None and len(viewpoints):
         through = _seen_through(cuboid, seen, np.asarray(viewpoints, float), settings) / len(points)
-    is_box = plausible and through is not None and through <= settings.max_seen_through
-    return BoxEvidence(cuboid, on_faces, top_coverage, through, is_box, plausible)
+    elif plausible and seen is not None:
+        under = _floor_seen_under(cuboid, np.asarray(seen, float), up, floor_offset, settings)
+    is_box = plausible and (through <= settings.max_seen_through if through is not None
+                            else under is not None and under <= settings.max_floor_seen_under)
+    return BoxEvidence(cuboid, on_faces, top_coverage, through, is_box, plausible, under)
 
 
 def candidate_boxes(cands: object, positions: list[int],
@@ -220,12 +237,12 @@ def candidate_boxes(cands: object, positions: list[int],
 
 def reported_as_box(evidence: BoxEvidence, settings: BoxSettings = BoxSettings()) -> bool:
     """Whether a candidate of ``evidence`` is a box to report: it passed every test of
-    :func:`box_evidence` and no horizontal edge of its cuboid is longer than ``max_length_m``."""
-    return evidence.is_box and max(evidence.cuboid.extents[:2]) <= settings.max_length_m
+    :func:`box_evidence` and no edge of its cuboid is longer than ``max_length_m``."""
+    return evidence.is_box and max(evidence.cuboid.extents) <= settings.max_length_m
 
 
 def peel_box(points: np.ndarray, heights: np.ndarray, up: np.ndarray, seen: np.ndarray,
-             viewpoints: np.ndarray, eps: float, min_rest: int,
+             viewpoints: np.ndarray | None, eps: float, min_rest: int,
              settings: BoxSettings = BoxSettings(),
              accept: Callable[[np.ndarray], bool] | None = None) -> tuple[np.ndarray, BoxEvidence] | None:
     """The points of a box among ``points`` (n, 3) of one cluster standing on the floor
@@ -238,11 +255,12 @@ def peel_box(points: np.ndarray, heights: np.ndarray, up: np.ndarray, seen: np.n
     upright cuboid (:func:`upright_cuboid` of the piece, from the floor to the level), and the
     cluster's points within ``face_band_m`` of it are the box if they pass :func:`box_evidence`
     for that cuboid (a top's edges place it better than the points beside its faces, a
-    neighbour's among them) with ``seen`` (m, 3), every point the sensor saw, and its
-    ``viewpoints`` (k, 3), and at least ``min_rest`` points are left beside it. Where given,
-    ``accept`` judges each cuboid whose points pass the tests of their own (a mask (n,) of the
-    box's points: True to go on) before its costly lines of sight; one it refuses is passed
-    over for the next (a sofa's base before the box against its arm).
+    neighbour's among them) with ``seen`` (m, 3), every point the sensor saw (the floor's too),
+    and its ``viewpoints`` (k, 3; None: unknown, the floor under it tells), and at least
+    ``min_rest`` points are left beside it. Where given, ``accept`` judges each cuboid whose
+    points pass the tests of their own (a mask (n,) of the box's points: True to go on) before
+    its costly lines of sight; one it refuses is passed over for the next (a sofa's base before
+    the box against its arm).
     """
     from jsrte.geometry.point_ops import dbscan_labels
 
@@ -313,6 +331,21 @@ def _top_coverage(top: np.ndarray, half: np.ndarray, cell: float) -> float:
     cells = np.maximum(1, (2.0 * half / cell).astype(int))
     index = np.clip(((top + half) / (2.0 * np.maximum(half, 1e-9)) * cells).astype(int), 0, cells - 1)
     return len(np.unique(index[:, 0] * cells[1] + index[:, 1])) / float(cells[0] * cells[1])
+
+
+def _floor_seen_under(cuboid: Cuboid, seen: np.ndarray, up: np.ndarray, floor_offset: float,
+                      settings: BoxSettings) -> float | None:
+    """Share of the cuboid's footprint, ``inner_margin_m`` within its edges, whose ``cell_m``
+    cells hold a point of ``seen`` (m, 3) on the floor (within ``floor_band_m`` of the plane
+    ``up . x = floor_offset``): nothing is seen under a solid box, from anywhere. None where the
+    footprint is too small to look under."""
+    inner = cuboid.extents[:2] / 2.0 - settings.inner_margin_m
+    if np.any(inner <= 0):
+        return None
+    floor = seen[np.abs(seen @ (np.asarray(up, float) / np.linalg.norm(up)) - floor_offset) < settings.floor_band_m]
+    local = cuboid.local(floor)[:, :2]
+    under = local[np.all(np.abs(local) < inner, axis=1)]
+    return _top_coverage(under, inner, settings.cell_m) if len(under) else 0.0
 
 
 def _seen_through(cuboid: Cuboid, seen: np.ndarray, viewpoints: np.ndarray, settings: BoxSettings) -> float:

@@ -108,7 +108,8 @@ class SegmentSettings:
     """Take a box out of a cluster before cutting it (:func:`jsrte.scans.boxes.peel_box`), where
     that cut would be kept as any other (with a class: a neck of at most ``cut_max``, what is
     left matching the class better than the whole by ``split_margin``; without: a neck of at
-    most ``cut_max_without_class``): needs the sensor's viewpoints."""
+    most ``cut_max_without_class``): needs the sensor's viewpoints, or without them every point
+    the sensor saw, the floor's too (a box hides the floor under it)."""
     cut_samples: int = 2000
     cut_neighbours: int = 10
     """The normalized cut's graph: this many points, each joined to this many nearest."""
@@ -266,7 +267,8 @@ def segment_objects(
     ``shape`` best, else the one with the most points. The sensor's ``viewpoints`` (k, 3) or the
     points' sensor-facing ``normals`` (n, 3), when known, tell walls from the faces of furniture
     (:func:`find_walls`). With the ``viewpoints``, every point the sensor ``seen`` (m, 3; default
-    ``points``) tells a box seen solid (``peel_boxes``). Raises ``JsrteError`` (naming ``path``)
+    ``points``) tells a box seen solid (``peel_boxes``); without them, ``seen`` (the floor's
+    points among them) tells it by the floor hidden under it. Raises ``JsrteError`` (naming ``path``)
     when no candidate is left, saying what was removed.
     """
     points = np.ascontiguousarray(points, dtype=np.float64)
@@ -285,6 +287,8 @@ def segment_objects(
     sight = None
     if settings.peel_boxes and viewpoints is not None and len(viewpoints):
         sight = Sight(points if seen is None else np.asarray(seen, float), np.asarray(viewpoints, float))
+    elif settings.peel_boxes and seen is not None:  # no cameras: the floor hidden under a box tells it
+        sight = Sight(np.asarray(seen, float), None)
     nodes: list[_Node] = []
     for c in clusters:
         _family_tree(c, points, heights, up, shape, settings, eps, nodes, sight=sight)
@@ -426,10 +430,11 @@ class _Node:
 
 @dataclass(frozen=True)
 class Sight:
-    """What the sensor saw: every point ``seen`` (m, 3) on a surface and its ``viewpoints`` (k, 3)."""
+    """What the sensor saw: every point ``seen`` (m, 3) on a surface, the floor's too, and its
+    ``viewpoints`` (k, 3), None where the cameras are not known."""
 
     seen: np.ndarray
-    viewpoints: np.ndarray
+    viewpoints: np.ndarray | None
 
 
 def _family_tree(cluster: _Cluster, points: np.ndarray, heights: np.ndarray, up: np.ndarray,

@@ -256,6 +256,8 @@ def _load_box(entry: FitEntry, max_scan_points: int) -> FitItem:
                     "points": str(box.get("points", "?"))}
     if isinstance(evidence.get("seen_through"), int | float):
         item.numbers["seen through"] = f"{evidence['seen_through']:.3f} per point"
+    if isinstance(evidence.get("floor_seen_under"), int | float):
+        item.numbers["floor seen under"] = f"{evidence['floor_seen_under']:.2f} of its footprint"
     return item
 
 

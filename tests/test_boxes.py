@@ -221,9 +221,9 @@ def chair_beside(kind: str, mesh: trimesh.Trimesh, tmp_path, gap_m: tuple[float,
     class): its candidates (``ScanCandidates``; segmented with the chair's class shape, or as a
     scene of unknown class) and each segmented point's truth label (0: the chair, 1: the other
     object)."""
-    from pykdtree.kdtree import KDTree
-
     import shutil
+
+    from pykdtree.kdtree import KDTree
 
     room = scan_room(stand_in_chair(), rng=np.random.default_rng(3), target_kind="chair",
                      settings=replace(TOUCHING, first_neighbour_gap_m=gap_m), others=[(kind, mesh, "test")])

@@ -756,3 +756,67 @@ def test_a_table_whose_top_was_not_seen_is_fitted_in_full_with_the_close_classes
     assert stays.reason == "no table seen" and stays.result.transform.s == 0.5
     assert stays.result.info["class"]["chosen"] == "table" and set(stays.result.info["class"]["in_full_scores"]) == {
         "table", "sofa", "bed"}
+
+
+def test_a_table_whose_top_was_not_seen_and_no_other_class_explains_is_searched_again(monkeypatch):
+    """Points on a sphere of radius 0.5 m, seen whole. The "table"'s full fit put its sphere 5 cm
+    above them: the points cover a quarter of its surface but none of its top, and the screen
+    left no other class close (the chair at 0.2 against 0.01), so no other class is fitted. The
+    table is fitted again by ESCAPE_PRESET (Levenberg-Marquardt) in SEARCH_AGAIN_DTYPE, whatever
+    the scene's arithmetic, and that fit's sphere lies on the points: it is kept and found,
+    and its record names the check and the first fit; ``_check_objects`` returns it. A search
+    whose fit lies on the points but is doubtful (on a quarter of them), or ends as far off,
+    leaves the object as it was, and a scene fitted with ESCAPE_PRESET
+    itself searches nothing again."""
+    import importlib
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from jsrte.fit.scene import ESCAPE_PRESET, SCENE_SCREEN, SEARCH_AGAIN_DTYPE, SceneObject, _check_objects
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.options import FitOptions
+
+    models = {name: SimpleNamespace(meta={"name": name}) for name in ("table", "chair")}
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    centre = np.array([0.0, 0.5, 0.0])
+    points = Sim3(0.5, np.eye(3), centre).apply(sphere.sample(20_000, seed=3))
+    scores = {"table": 0.01, "chair": 0.2}
+
+    def fit_at(height: float, preset: str, share: float = 0.9) -> SimpleNamespace:
+        return SimpleNamespace(quality={"inlier_share": share}, transform=Sim3(0.5, np.eye(3), centre + [0, height, 0]),
+                               flag="ok", latent=np.zeros(1), mesh_canonical=sphere, loss=0.004,
+                               info={"preset": preset, "class": {"chosen": "table", "scores": scores}})
+
+    searched_with = []
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False, settings=None):
+        searched_with.append((options.preset, settings.fit.solver, options.dtype))
+        return fit_at(fit_recorded.height, options.preset, fit_recorded.share)
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit"), "fit_recorded", fit_recorded)
+
+    def table_fitted_too_high() -> SceneObject:
+        return SceneObject(0, 0, points, model="table", result=fit_at(0.05, "fast-scales"),
+                           choice=SimpleNamespace(query=None), class_choice={"chosen": "table", "scores": scores})
+
+    fit_recorded.height, fit_recorded.share = 0.0, 0.9
+    found = table_fitted_too_high()
+    in_bfloat16 = FitOptions(preset="fast-scales", dtype="bfloat16")
+    assert _check_objects([found], models, in_bfloat16, 1, SCENE_SCREEN) == [found]
+    assert searched_with == [(ESCAPE_PRESET, "gauss-newton", SEARCH_AGAIN_DTYPE)] and SEARCH_AGAIN_DTYPE == "float32"
+    assert found.status == "ok" and found.model == "table" and found.result.transform.t[1] == 0.5
+    assert found.result.info["refitted"] == {"preset": ESCAPE_PRESET, "after": "top",
+                                             "first": {"preset": "fast-scales", "inlier_share": 0.9, "loss": 0.004}}
+    fit_recorded.height, fit_recorded.share = 0.0, 0.25  # on the points, but on a quarter of them: doubtful
+    doubtful = table_fitted_too_high()
+    assert _check_objects([doubtful], models, in_bfloat16, 1, SCENE_SCREEN) == []
+    assert doubtful.status == "unexplained" and doubtful.result.transform.t[1] == 0.55
+    fit_recorded.height, fit_recorded.share = 0.05, 0.9
+    unseen = table_fitted_too_high()
+    assert _check_objects([unseen], models, FitOptions(preset="fast-scales"), 1, SCENE_SCREEN) == []
+    assert len(searched_with) == 3 and unseen.status == "unexplained" and unseen.unexplained_by == "top"
+    assert unseen.result.info["preset"] == "fast-scales" and "refitted" not in unseen.result.info
+    escape = table_fitted_too_high()
+    assert _check_objects([escape], models, FitOptions(preset=ESCAPE_PRESET), 1, SCENE_SCREEN) == []
+    assert len(searched_with) == 3 and escape.status == "unexplained"

@@ -129,3 +129,24 @@ def test_a_camera_index_that_does_not_fit_the_points_is_refused(tmp_path):
     with pytest.raises(JsrteError, match="bad.ply.*negative|negative.*bad.ply"):
         load_scan(path)
     assert ScanCloud(scan.points).view is None
+
+
+def test_the_fit_veil_leaves_mixed_pixels_out_of_the_fit_but_not_of_the_segmentation(tmp_path):
+    from jsrte.scans.scanner import scan_mesh
+    from test_scans import stand_in_chair
+
+    scan = scan_mesh(stand_in_chair(), rng=np.random.default_rng(0),
+                     settings=ScannerSettings(width=80, height=60, random_world_frame=False))
+    cloud = load_scan(write_scan(scan, tmp_path / "scan.ply"))
+    plain = segment_scan(cloud, rng=np.random.default_rng(0), viewpoints=scan.cameras)
+    veiled = segment_scan(cloud, rng=np.random.default_rng(0), viewpoints=scan.cameras,
+                          settings=PrepareSettings(fit_veil=VeilSettings()))
+    assert plain.fit_mixed is None and veiled.mixed is None
+    assert np.array_equal(plain.index, veiled.index)  # the same points segmented, the same candidates
+    candidate = veiled.index[veiled.segmentation.candidates[veiled.segmentation.chosen].index]
+    left_out = veiled.fit_mixed[candidate]
+    assert left_out.sum() > 0
+    prepared = veiled.prepare()
+    assert not veiled.fit_mixed[prepared.index].any()  # none of the fit's points is a mixed pixel
+    assert set(prepared.index) <= set(candidate[~left_out])
+    assert set(plain.prepare().index) & set(candidate[left_out])  # which the plain fit keeps

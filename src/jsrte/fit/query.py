@@ -15,6 +15,7 @@ from jsrte.formats import input_kind
 from jsrte.geometry.mesh import load_mesh
 from jsrte.presets import ScanSdf, SdfSampling
 from jsrte.scans.segment import ClassShape, Segmentation, SegmentSettings
+from jsrte.scans.veil import VeilSettings
 from jsrte.sdf.mesh_sdf import SdfSamples, sample_sdf
 from jsrte.timing import stage
 
@@ -156,12 +157,14 @@ class ScanCandidates:
 def scan_candidates(path: str | Path, *, rng: np.random.Generator, up: np.ndarray | None = None,
                     viewpoints: np.ndarray | None = None, settings: ScanSdf = ScanSdf(),
                     units_check: bool = True, shape: ClassShape | None = None,
-                    at: np.ndarray | None = None, segment: SegmentSettings = SegmentSettings()) -> ScanCandidates:
+                    at: np.ndarray | None = None, segment: SegmentSettings = SegmentSettings(),
+                    fit_veil: VeilSettings | None = None) -> ScanCandidates:
     """A scan (point cloud or scan mesh, metres, floor optional when ``up`` is given) loaded and
     segmented into candidate objects (``jsrte.scans.segment`` with ``segment``): the one nearest
     ``at`` (3,) is chosen if given, else the one most like ``shape`` (the class's proportions,
     see :func:`class_shape`). The sensor's ``viewpoints`` (k, 3) are given, or the ``cameras``
-    of the scan's JSON sidecar."""
+    of the scan's JSON sidecar. With ``fit_veil``, each candidate's mixed pixels are left out of
+    its points for its fit (``PrepareSettings.fit_veil``)."""
     from jsrte.scans.io import load_scan, read_scan_info
     from jsrte.scans.preprocess import PrepareSettings, segment_scan
 
@@ -171,7 +174,7 @@ def scan_candidates(path: str | Path, *, rng: np.random.Generator, up: np.ndarra
     if viewpoints is None and info is not None and len(info.cameras):
         viewpoints = info.cameras
     segmented = segment_scan(cloud, rng=rng, up=up, viewpoints=viewpoints, shape=shape, at=at,
-                             settings=PrepareSettings(units_check=units_check), segment=segment)
+                             settings=PrepareSettings(units_check=units_check, fit_veil=fit_veil), segment=segment)
     return ScanCandidates(segmented, settings)
 
 

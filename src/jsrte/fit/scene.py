@@ -55,6 +55,7 @@ from jsrte.presets import SCENE_PRESET
 from jsrte.result import FitResult
 from jsrte.scans.boxes import BoxEvidence, BoxSettings, candidate_boxes
 from jsrte.scans.segment import SegmentSettings
+from jsrte.scans.veil import VeilSettings
 
 
 @dataclass
@@ -194,6 +195,14 @@ rooms (100-129 of seed 0) every cut between two objects touching each other scor
 less; cuts within one object ran from 0.0007 to 0.02. Cuts along three eigenvectors
 (``cut_vectors=3``) give more objects a candidate of their own but were not better once fitted
 (docs/clutter.md, Limits)."""
+
+
+SCENE_FIT_VEIL: VeilSettings | None = None
+"""With settings, every fit of a scene, quick or full, leaves the sensor's mixed pixels
+(``jsrte.scans.veil``, where the scan says which camera saw each point) out of its candidate's
+points, not out of the segmentation (``PrepareSettings.fit_veil``). Off: on the tuning rooms it
+found one object fewer with two false detections fewer, and on the reported rooms 0-9 it lost
+class accuracy and F@5% (docs/clutter.md, "Whole scenes", step 3)."""
 
 
 SCENE_SCREEN = ScreenSettings(fit=replace(SCREEN_FIT, init_scale="both"),
@@ -373,7 +382,8 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         cands = scan_candidates(path, rng=np.random.default_rng(options.seed), up=_array(options.up),
                                 viewpoints=_array(options.viewpoints), settings=settings.scan_sdf,
                                 units_check=options.units_check, shape=shape,
-                                segment=SegmentSettings() if shape is not None else SCENE_SEGMENT)
+                                segment=SegmentSettings() if shape is not None else SCENE_SEGMENT,
+                                fit_veil=SCENE_FIT_VEIL)
         found_boxes = {} if boxes is None else candidate_boxes(cands, cands.possible(), boxes)
     screen = screen.held_to_sizes(settings.fit.size_margin).in_arithmetic(options.dtype).searched_as(settings.fit)
     segmented = cands.segmented

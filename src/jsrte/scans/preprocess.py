@@ -85,6 +85,11 @@ class PrepareSettings:
     floor when the scan says which camera saw each point. None (the default) keeps them: on the
     tuning rooms the removal separated one more chair of 20 but lowered the mean F@5% (the split
     and the screen came out otherwise room by room; docs/clutter.md)."""
+    fit_veil: VeilSettings | None = None
+    """With settings, the mixed pixels are left out of each candidate's points when it is
+    prepared for a fit (:func:`prepare_object`), not of the segmentation: the clusters, cuts and
+    candidates stay those of ``veil``. None (the default) keeps them: in whole scenes it moved
+    class choices and fits both ways (docs/clutter.md, "Whole scenes", step 3)."""
 
 
 @dataclass(frozen=True)
@@ -455,6 +460,8 @@ class SegmentedScan:
     settings : the preprocessing's settings
     mixed : (n,) bool over ``cloud.points``, the mixed pixels found (left out of ``index`` and of
         the free-space evidence), or None when the test did not run
+    fit_mixed : (n,) bool over ``cloud.points``, the mixed pixels left out of each candidate's
+        points for its fit (``PrepareSettings.fit_veil``), or None
     """
 
     cloud: ScanCloud
@@ -465,6 +472,7 @@ class SegmentedScan:
     viewpoints: np.ndarray | None = None
     settings: PrepareSettings = PrepareSettings()
     mixed: np.ndarray | None = field(default=None, repr=False)
+    fit_mixed: np.ndarray | None = field(default=None, repr=False)
 
     def seen_points(self) -> np.ndarray:
         """(m, 3) every point the sensor saw on a surface: the cloud without its mixed pixels
@@ -540,17 +548,21 @@ def segment_scan(
         raise
     if mixed is not None:
         segmentation.removed = {"mixed_pixels": n_mixed} | segmentation.removed
+    fit_mixed = scan_mixed_pixels(points, cloud.view, viewpoints, settings.fit_veil)
     return SegmentedScan(cloud=cloud, index=index, up=up_axis, floor=floor, segmentation=segmentation,
-                         viewpoints=viewpoints, settings=settings, mixed=mixed)
+                         viewpoints=viewpoints, settings=settings, mixed=mixed, fit_mixed=fit_mixed)
 
 
 @timed_stage("floor and cleaning")
 def prepare_object(segmented: SegmentedScan, index: np.ndarray) -> PreparedScan:
     """The second half of :func:`prepare_scan`: the object's points ``index`` (p,) (into the
-    scan's cloud) cleaned (statistical outliers, hidden points), checked for metres, with
-    outward normals."""
+    scan's cloud) cleaned (mixed pixels where ``PrepareSettings.fit_veil`` asks, statistical
+    outliers, hidden points), checked for metres, with outward normals."""
     cloud, viewpoints, settings = segmented.cloud, segmented.viewpoints, segmented.settings
     points = cloud.points
+    if segmented.fit_mixed is not None:
+        index = index[~segmented.fit_mixed[index]]
+        _require(index, settings, cloud.path, "without its mixed pixels")
     index = index[remove_outliers(points[index], neighbours=settings.sor_neighbours,
                                   std_ratio=settings.sor_std_ratio)]
     if viewpoints is not None:

@@ -576,3 +576,36 @@ def test_cameras_walked_nearly_along_a_line_still_give_the_up_axis():
     assert walk_up is not None and abs(walk_up @ up) > np.cos(np.radians(3))
     on_a_line = np.outer(np.linspace(-1.8, 1.8, 6), along) + np.outer(rng.normal(0.0, 0.01, 6), up + across)
     assert camera_plane_normal(on_a_line) is None  # no plane to speak of: a line with noise around it
+
+
+@pytest.mark.parametrize("keeps_parts", [True, False])
+def test_without_a_class_two_tables_side_by_side_stay_candidates_of_their_own(keeps_parts):
+    """Two tables 6 cm apart along their long sides, the second's top seen 8 cm apart from its
+    legs (joined by a stretcher): four clusters within joining reach. A scene's segmentation
+    joins the top to the legs under it first (the top is nearer the other table) and keeps the
+    two tables as the parts of their join; without ``join_keeps_parts_without_class`` the join
+    is one cluster, left to the normalized cut."""
+    from jsrte.fit.scene import SCENE_SEGMENT
+
+    move = trimesh.transformations.translation_matrix
+    first = table()
+    top = trimesh.creation.box([1.0, 0.04, 0.6], transform=move([0, 0.73, 0.66]))
+    legs = trimesh.util.concatenate(
+        [trimesh.creation.box([0.05, 0.63, 0.05], transform=move([x, 0.315, 0.66 + z]))
+         for x in (-0.45, 0.45) for z in (-0.25, 0.25)]
+        + [trimesh.creation.box([0.9, 0.03, 0.5], transform=move([0, 0.3, 0.66]))])
+    clouds = [_surface_points(mesh, int(10000 * mesh.area), k) for k, mesh in enumerate([first, top, legs])]
+    points = np.concatenate(clouds)  # about 1 cm apart
+    is_first = np.arange(len(points)) < len(clouds[0])
+    settings = replace(SCENE_SEGMENT, join_keeps_parts_without_class=keeps_parts)
+    result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0),
+                             settings=settings)
+    union = result.candidates[0]
+    assert len(union.index) > 0.98 * len(points) and union.parent is None
+    if not keeps_parts:  # one cluster, which the normalized cut may still split
+        assert "joined" not in union.summary
+        return
+    shares = sorted((float(is_first[result.candidates[p].index].mean()), len(result.candidates[p].index))
+                    for p in union.parts)
+    assert union.summary["joined"] and [s for s, _ in shares] == [0.0, 1.0]
+    assert shares[0][1] > 0.98 * (len(points) - len(clouds[0])) and shares[1][1] > 0.98 * len(clouds[0])

@@ -187,14 +187,16 @@ class SceneResult:
                 "timing_s": self.timing}
 
 
-SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008)
+SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True)
 """The segmentation of a scene whose class is unknown: without a class shape to say where to cut,
 every neck of normalized cut 0.008 or less is cut (the whole staying a candidate beside its
 parts), and fits of the whole and of its parts decide (:func:`judge_splits`). On the tuning
 rooms (100-129 of seed 0) every cut between two objects touching each other scored 0.0074 or
 less; cuts within one object ran from 0.0007 to 0.02. Cuts along three eigenvectors
 (``cut_vectors=3``) give more objects a candidate of their own but were not better once fitted
-(docs/clutter.md, Limits)."""
+(docs/clutter.md, Limits). Two clusters within joining reach that could each be an object (two
+tables side by side, a chair beside a bed) stay the parts of their join
+(``join_keeps_parts_without_class``), judged as a split's."""
 
 
 SCENE_FIT_VEIL: VeilSettings | None = None

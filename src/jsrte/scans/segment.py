@@ -10,6 +10,8 @@ Above the floor (found by :func:`jsrte.scans.preprocess.segment_floor`), in orde
    class as well as the bigger one alone (a chair's back on thin posts). Two big clusters
    joined on the class's proportions stay candidates beside their union (its ``parts``): a
    chair beside a box can match the class's proportions too, and the quick fit decides.
+   Without a class (a scene's ``join_keeps_parts_without_class``), two clusters that could
+   each be an object, neither over the other, stay the parts of their join.
 4. **Split**: a cluster that holds two touching objects is cut in two at its narrowest neck
    (normalized cut of its neighbour graph); the split is kept when one of its parts matches
    the class better than the whole (:func:`class_score`), and its parts are cut again. The
@@ -141,6 +143,10 @@ class SegmentSettings:
     join_keeps_parts: bool = True
     """Two big clusters merged on class evidence stay candidates as the merge's parts (the
     screen judges the merge against them); False: the merge alone is a candidate."""
+    join_keeps_parts_without_class: bool = False
+    """Without a class (whole scenes, where every two big clusters closer than ``join_m`` merge),
+    the two stay candidates as the merge's parts too: two tables 3-7 cm apart, or a chair beside
+    a bed, are clusters of their own before the join."""
     support_share: float = 0.5
     """A cluster with this share of its points under a floating one (a leg under a table's top)
     joins it."""
@@ -448,8 +454,9 @@ def _family_tree(cluster: _Cluster, points: np.ndarray, heights: np.ndarray, up:
         return
     nodes.append(_Node(cluster.index, parent, joined=True))
     parent = len(nodes) - 1
+    depth += shape is not None  # without a class the join uses up no level of cuts
     for member in cluster.members:
-        _family_tree(member, points, heights, up, shape, s, eps, nodes, parent, depth + 1, sight)
+        _family_tree(member, points, heights, up, shape, s, eps, nodes, parent, depth, sight)
 
 
 def _split_tree(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
@@ -762,27 +769,80 @@ def _join(clusters: list[np.ndarray], points: np.ndarray, heights: np.ndarray, s
             gaps[i, j] = gaps[j, i] = _gap(points[big[i].index], points[big[j].index], s.join_m)
     alive = list(range(len(big)))
     refused: set[tuple[int, int]] = set()
+    stacked: dict[tuple[int, int], bool] = {}  # without a class: one lies over the other
+    apart = shape is None and s.join_keeps_parts_without_class
+
+    def first(i: int, j: int) -> bool:  # without a class, a top joins what it stands on first
+        if not apart:
+            return True
+        if (i, j) not in stacked:
+            stacked[i, j] = _one_over_other(big[i].index, big[j].index, points, heights, s)
+        return stacked[i, j]
+
     while True:
-        pairs = sorted((gaps[i, j], i, j) for i in alive for j in alive
+        pairs = sorted((not first(i, j), gaps[i, j], i, j) for i in alive for j in alive
                        if i < j and gaps[i, j] <= s.join_m and (i, j) not in refused)
         if not pairs:
             return [big[k] for k in alive]
-        _, i, j = pairs[0]
+        _, _, i, j = pairs[0]
         bigger, smaller = (i, j) if len(big[i].index) >= len(big[j].index) else (j, i)
         union = np.concatenate([big[bigger].index, big[smaller].index])
         fragment = len(big[smaller].index) < s.fragment_share * len(big[bigger].index)
         if fragment or _merge_matches(big[bigger].index, union, points, heights, shape, s):
-            if fragment:
-                big[i] = _absorb(big[bigger], big[smaller].index, points)
-            else:
-                keep = s.join_keeps_parts and shape is not None
-                big[i] = _Cluster(union, [big[bigger], big[smaller]] if keep else [])
+            big[i] = _merged(big[bigger], big[smaller], fragment, points, heights, shape, s)
             gaps[i] = gaps[:, i] = np.minimum(gaps[i], gaps[j])
             gaps[i, i] = np.inf
             alive.remove(j)
             refused = {pair for pair in refused if i not in pair}
+            stacked = {pair: v for pair, v in stacked.items() if i not in pair}
         else:
             refused.add((i, j))
+
+
+def _merged(bigger: _Cluster, smaller: _Cluster, fragment: bool, points: np.ndarray, heights: np.ndarray,
+            shape: ClassShape | None, s: SegmentSettings) -> _Cluster:
+    """The join of two clusters: a ``fragment`` taken into the nearest member of the ``bigger``;
+    two big ones with their members kept (with a class and ``join_keeps_parts``) or not.
+    Without a class and with ``join_keeps_parts_without_class``, the two stay members where
+    each could be an object and neither lies under the other (:func:`_kept_apart`), and the
+    smaller is taken into the bigger's nearest member otherwise."""
+    union = np.concatenate([bigger.index, smaller.index])
+    if shape is None and s.join_keeps_parts_without_class:
+        if _kept_apart(smaller.index, bigger, points, heights, s):
+            return _Cluster(union, [bigger, smaller])
+        return _absorb(bigger, smaller.index, points)
+    if fragment:
+        return _absorb(bigger, smaller.index, points)
+    return _Cluster(union, [bigger, smaller] if s.join_keeps_parts and shape is not None else [])
+
+
+def _kept_apart(smaller: np.ndarray, bigger: _Cluster, points: np.ndarray, heights: np.ndarray,
+                s: SegmentSettings) -> bool:
+    """Whether the ``smaller`` cluster (indices) and the member of the ``bigger`` nearest it could
+    each be an object, neither lying under the other (a chair beside a bed, a table beside a
+    table; not a table's legs under its top, nor its top seen apart from them)."""
+    host = _nearest_member(bigger, smaller, points)
+    if not (_object_sized(points[smaller], heights[smaller], s) and _object_sized(points[host], heights[host], s)):
+        return False
+    return not _one_over_other(host, smaller, points, heights, s)
+
+
+def _one_over_other(a: np.ndarray, b: np.ndarray, points: np.ndarray, heights: np.ndarray, s: SegmentSettings
+                    ) -> bool:
+    """Whether ``support_share`` of cluster ``a`` (indices) lies under or over ``b``, or of ``b``
+    under or over ``a`` (within ``join_m`` across the up axis): a table's legs and its top."""
+    both = np.concatenate([a, b])
+    flat = _flat(points[both], heights[both])  # (n, 2) across the up axis
+    return max(_share_under(flat[: len(a)], flat[len(a):], s.join_m),
+               _share_under(flat[len(a):], flat[: len(a)], s.join_m)) >= s.support_share
+
+
+def _nearest_member(cluster: _Cluster, fragment: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The points (indices) of the innermost member of ``cluster`` nearest ``fragment``."""
+    if not cluster.members:
+        return cluster.index
+    gaps = [_gap(points[m.index], points[fragment], np.inf) for m in cluster.members]
+    return _nearest_member(cluster.members[int(np.argmin(gaps))], fragment, points)
 
 
 def _absorb(cluster: _Cluster, fragment: np.ndarray, points: np.ndarray) -> _Cluster:

@@ -841,15 +841,19 @@ def _nearest_member(cluster: _Cluster, fragment: np.ndarray, points: np.ndarray)
     """The points (indices) of the innermost member of ``cluster`` nearest ``fragment``."""
     if not cluster.members:
         return cluster.index
-    gaps = [_gap(points[m.index], points[fragment], np.inf) for m in cluster.members]
-    return _nearest_member(cluster.members[int(np.argmin(gaps))], fragment, points)
+    return _nearest_member(cluster.members[_nearest(cluster.members, fragment, points)], fragment, points)
+
+
+def _nearest(members: list[_Cluster], fragment: np.ndarray, points: np.ndarray) -> int:
+    """The position of the member (of ``members``) nearest the points ``fragment`` (indices)."""
+    return int(np.argmin([_gap(points[m.index], points[fragment], np.inf) for m in members]))
 
 
 def _absorb(cluster: _Cluster, fragment: np.ndarray, points: np.ndarray) -> _Cluster:
     """``cluster`` with the points ``fragment`` (indices) added, to its nearest member too."""
     members = list(cluster.members)
     if members:
-        k = int(np.argmin([_gap(points[m.index], points[fragment], np.inf) for m in members]))
+        k = _nearest(members, fragment, points)
         members[k] = _absorb(members[k], fragment, points)
     return _Cluster(np.concatenate([cluster.index, fragment]), members)
 

@@ -11,7 +11,7 @@ import pytest
 
 from cli_runner import run_cli
 from jsrte.errors import JsrteError
-from jsrte.fit.scene import PHASES
+from jsrte.fit.scene import PHASES, SEEN_THROUGH_MAX
 from jsrte.scans.scene import SceneSettings, scan_room, write_room
 from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 from test_clutter import table
@@ -60,6 +60,7 @@ def test_scene_fits_every_object_near_its_truth(room_scan, tmp_path, monkeypatch
         assert len(near) == 1, (kind, centre, [o["fitted_centre"] for o in fitted])
         assert near[0]["class"] == kind
         assert (out / near[0]["folder"] / "fit.json").is_file()
+        assert near[0]["quality"]["seen_through"] < SEEN_THROUGH_MAX  # the scan's views know the right fit
     import trimesh
 
     mesh = trimesh.load(out / "scene.ply", process=False)

@@ -9,7 +9,7 @@ sphere). docs/confidence.md gives the rule's precision and recall and how it was
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -17,6 +17,9 @@ import torch
 from jsrte.geometry.sim3 import Sim3, rotation_angle_deg
 from jsrte.model.decoder import Decoder, decoder_device
 from jsrte.result import FitResult, HypothesisReport
+
+if TYPE_CHECKING:
+    from jsrte.scans.views import CameraViews
 
 INLIER_FRACTION = 0.02
 """A query point is an inlier when |fitted SDF| < this fraction of the fit's scale (1 cm on a chair)."""
@@ -230,6 +233,20 @@ def top_coverage(mesh_canonical: Any, transform: Sim3, points: np.ndarray, seed:
     return _covered_share(transform.apply(top), points, transform.s)
 
 
+def seen_through_share(mesh_canonical: Any, transform: Sim3, views: CameraViews | None,
+                       seed: int = 0) -> float | None:
+    """Share of the fitted surface that the scan's cameras saw through: of ``COVERAGE_SAMPLES``
+    points drawn by area on the fitted mesh (``mesh_canonical`` placed by ``transform``), those
+    in the observed free space of some camera of ``views``, clear of every reading
+    (``jsrte.scans.views.CameraViews.seen_through``). None without a mesh or without the cameras
+    and which camera saw each point. High on a shape the scan contradicts (fitted too big, or over
+    the floor beside its object); low on a right fit whatever was not seen of it."""
+    if views is None or mesh_canonical is None or not len(mesh_canonical.faces):
+        return None
+    drawn = transform.apply(np.asarray(mesh_canonical.sample(COVERAGE_SAMPLES, seed=seed), float))
+    return float(views.seen_through(drawn).mean())
+
+
 def volume_inside(decoder: Decoder, result: FitResult, other_decoder: Decoder, other: FitResult,
                   seed: int = 0) -> float | None:
     """Share of the volume of the fitted shape of ``result`` (decoded by ``decoder``) that lies
@@ -289,6 +306,8 @@ MEASURES = {
                         "(None without a mesh)",
     "top_coverage": f"objects of a scene: the same share of the fitted surface's top (its highest "
                     f"{TOP_BAND:.0%} of height)",
+    "seen_through": "objects of a scene: share of the fitted surface in space the cameras saw through, "
+                    "clear of every scan point (None without the cameras or the view of each point)",
 }
 """Each measure of the quality block and its unit."""
 

@@ -55,23 +55,17 @@ def veil_score(points: np.ndarray, view: np.ndarray, cameras: np.ndarray,
     neighbour in its own view (``view`` (n,) int into ``cameras`` (k, 3)), in units of the
     tolerance at its range, ``max(min_tolerance_m, sigmas * (a + b * r**2))``; 0 for a point with
     no image neighbour (alone in its view). Above 1: a mixed pixel."""
-    from scipy.spatial import cKDTree
+    from jsrte.scans.views import lines_of_sight
 
     points = np.asarray(points, dtype=np.float64)
     cameras = np.asarray(cameras, dtype=np.float64).reshape(-1, 3)
     score = np.zeros(len(points))
     for k, camera in enumerate(cameras):
         index = np.flatnonzero(view == k)
-        if len(index) < 2:
+        tree, ranges, pixel = lines_of_sight(points[index], camera)
+        if tree is None or not pixel > 0:
             continue
-        offset = points[index] - camera
-        ranges = np.linalg.norm(offset, axis=1)
-        directions = offset / np.maximum(ranges, 1e-12)[:, None]
-        tree = cKDTree(directions)
-        pixel = float(np.median(tree.query(directions, k=2)[0][:, 1]))
-        if not pixel > 0:
-            continue
-        distance, neighbour = tree.query(directions, k=9, distance_upper_bound=settings.neighbour_px * pixel)
+        distance, neighbour = tree.query(tree.data, k=9, distance_upper_bound=settings.neighbour_px * pixel)
         found = np.isfinite(distance[:, 1:])
         other = np.where(found, neighbour[:, 1:], 0)
         sigma = settings.noise_a_m + settings.noise_b_per_m * ranges**2

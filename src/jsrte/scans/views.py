@@ -68,15 +68,9 @@ class CameraViews:
         points = np.asarray(points, dtype=np.float64)
         centres = np.asarray(cameras, dtype=np.float64).reshape(-1, 3)
         view = np.asarray(view)
-        trees, ranges, pixels = [], [], []
-        for k, centre in enumerate(centres):
-            offset = points[view == k] - centre
-            distance = np.linalg.norm(offset, axis=1)
-            tree = cKDTree(offset / np.maximum(distance, 1e-12)[:, None]) if len(offset) > 1 else None
-            trees.append(tree)
-            ranges.append(distance)
-            pixels.append(float(np.median(tree.query(tree.data, k=2)[0][:, 1])) if tree is not None else 0.0)
-        return cls(centres, tuple(trees), tuple(ranges), tuple(pixels), cKDTree(points))
+        trees, ranges, pixels = zip(*(lines_of_sight(points[view == k], centre) for k, centre in enumerate(centres)),
+                                    strict=True)
+        return cls(centres, trees, ranges, pixels, cKDTree(points))
 
     def seen_through(self, points: np.ndarray, settings: SightSettings = SightSettings()) -> np.ndarray:
         """(m,) bool: True for the ``points`` (m, 3) that some camera saw through (every one of
@@ -90,6 +84,20 @@ class CameraViews:
             through |= _beyond(points, centre, tree, ranges, pixel, settings)
         clear = self.readings.query(points, k=1)[0] > settings.clearance_m
         return through & clear
+
+
+def lines_of_sight(readings: np.ndarray, centre: np.ndarray) -> tuple[object | None, np.ndarray, float]:
+    """The ``readings`` (m, 3) of the camera at ``centre`` (3,) as lines of sight: a KD-tree over
+    their unit directions (``tree.data``; None for fewer than two readings), their ranges (m,) and
+    the median angle (radians) between a reading and its nearest neighbour: about one pixel."""
+    from scipy.spatial import cKDTree
+
+    offset = np.asarray(readings, dtype=np.float64) - centre
+    ranges = np.linalg.norm(offset, axis=1)
+    if len(offset) < 2:
+        return None, ranges, 0.0
+    tree = cKDTree(offset / np.maximum(ranges, 1e-12)[:, None])
+    return tree, ranges, float(np.median(tree.query(tree.data, k=2)[0][:, 1]))
 
 
 def _beyond(points: np.ndarray, centre: np.ndarray, tree: object, ranges: np.ndarray, pixel: float,

@@ -1,6 +1,8 @@
 """The scan preprocessing's point operations (jsrte.geometry.point_ops) and the PLY reader give
 what Open3D gives (imported here only, as the reference), and what geometry says they must."""
 
+import warnings
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -258,3 +260,21 @@ def test_ply_with_a_list_before_the_vertices_is_read_by_open3d(tmp_path):
     PlyData([PlyElement.describe(tags, "tags"), PlyElement.describe(vertex, "vertex")]).write(str(path))
     assert read_ply_cloud(path) is None
     np.testing.assert_array_equal(load_scan(path).points, np.column_stack([vertex[a] for a in "xyz"]))
+
+
+@pytest.mark.parametrize("length", [0.0, 1e200])
+def test_ply_normals_of_no_usable_length_are_dropped_without_a_warning(tmp_path, length):
+    from plyfile import PlyData, PlyElement
+
+    rng = np.random.default_rng(12)
+    rows = np.zeros(50, dtype=[(k, "f8") for k in ("x", "y", "z", "nx", "ny", "nz")])
+    for k, column in zip(("x", "y", "z"), rng.normal(size=(3, 50)), strict=True):
+        rows[k] = column
+    rows["nx"] = rows["ny"] = length  # the square of 1e200 overflows a float64
+    rows["ny"][0] = 1.0
+    path = tmp_path / "cloud.ply"
+    PlyData([PlyElement.describe(rows, "vertex")]).write(str(path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        loaded = load_scan(path)
+    assert loaded.normals is None and len(loaded.points) == 50

@@ -213,13 +213,20 @@ def _checked(points: np.ndarray, normals: np.ndarray | None, path: Path,
     if bad.any():
         raise JsrteError(f"has {int(bad.sum())} points with NaN or infinite coordinates", path)
     if normals is not None:
-        normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-        length = np.linalg.norm(normals, axis=1)
-        if len(normals) != len(points) or not np.all(np.isfinite(normals)) or np.any(length < 1e-9):
-            normals = None  # unusable normals are re-estimated downstream
-        else:
-            normals = normals / length[:, None]
+        normals = _unit_normals(np.asarray(normals, dtype=np.float64).reshape(-1, 3), len(points))
     if view is not None and (len(view) != len(points) or (len(view) and view.min() < 0)):
         raise JsrteError(f"has {len(view)} camera indices ('view') for {len(points)} points, "
                          "or a negative one", path)
     return ScanCloud(points=points, normals=normals, path=path, view=view)
+
+
+def _unit_normals(normals: np.ndarray, count: int) -> np.ndarray | None:
+    """(count, 3) unit normals, or None where they are unusable (re-estimated downstream): another
+    count, a NaN or infinite component, or a length that is zero or too large to compute."""
+    if len(normals) != count or not np.all(np.isfinite(normals)):
+        return None
+    with np.errstate(over="ignore"):
+        length = np.linalg.norm(normals, axis=1)
+    if not np.all(np.isfinite(length)) or np.any(length < 1e-9):
+        return None
+    return normals / length[:, None]

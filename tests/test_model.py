@@ -183,3 +183,16 @@ def test_evaluate_model_scores_both_sets_and_never_overwrites_without_asking(tmp
     code, _, stderr = run_cli([*args, "--n-heldout", "0", "--overwrite"])
     assert code == 0, stderr
     assert json.loads(report.read_text())["rows"] == written["rows"][:1]
+
+
+def test_flush_denormals_makes_floats_below_the_normal_range_zero():
+    from jsrte.model.decoder import flush_denormals
+
+    tiny = torch.tensor([1e-39, 1.0], dtype=torch.float32)  # 1e-39: a float32 denormal
+    try:
+        if not flush_denormals():
+            pytest.skip("this CPU cannot flush denormals")
+        assert (tiny * 1.0).tolist() == [0.0, 1.0]
+    finally:
+        torch.set_flush_denormal(False)
+    assert (tiny * 1.0)[0].item() > 0

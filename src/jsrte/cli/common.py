@@ -13,10 +13,14 @@ if TYPE_CHECKING:  # torch is imported by the commands that run, never for --hel
 
 
 def set_threads(threads: int | None) -> None:
-    """Use ``threads`` CPU threads for PyTorch (None or 0: all cores); JsrteError if negative."""
+    """Use ``threads`` CPU threads for PyTorch (None or 0: all cores), denormal floats flushed to
+    zero (``jsrte.model.decoder.flush_denormals``); JsrteError if negative."""
     import torch
 
+    from jsrte.model.decoder import flush_denormals
+
     check_threads(threads)
+    flush_denormals()
     torch.set_num_threads(threads or os.cpu_count() or 1)
 
 

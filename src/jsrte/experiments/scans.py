@@ -260,6 +260,8 @@ _WORKER_CONTEXT: _CaseContext | None = None
 def _init_worker(context: _CaseContext, threads: int, parent_pid: int | None = None) -> None:
     import torch
 
+    from jsrte.model.decoder import flush_denormals
+
     if parent_pid is not None:  # no orphan keeps running after the experiment is killed
         from jsrte.processes import die_with_parent
 
@@ -267,6 +269,7 @@ def _init_worker(context: _CaseContext, threads: int, parent_pid: int | None = N
 
     global _WORKER_CONTEXT
     _WORKER_CONTEXT = context
+    flush_denormals()
     torch.set_num_threads(threads)
 
 

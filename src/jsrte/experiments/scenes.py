@@ -286,9 +286,11 @@ def _rooms(todo: list[int], config: ScenesConfig, out: Path, jobs: int, threads:
 def _init_worker(threads: int, parent_pid: int) -> None:
     import torch
 
+    from jsrte.model.decoder import flush_denormals
     from jsrte.processes import die_with_parent
 
     die_with_parent(parent_pid)
+    flush_denormals()
     torch.set_num_threads(threads)
 
 

@@ -5,6 +5,17 @@ import pytest
 from cli_runner import run_cli as _run_cli
 
 
+@pytest.fixture(autouse=True)
+def ieee_denormals():
+    """Every test starts and ends with denormal floats computed, as IEEE 754 says: a command run
+    in this process flushes them for the rest of its process (``jsrte.model.decoder``)."""
+    import torch
+
+    torch.set_flush_denormal(False)
+    yield
+    torch.set_flush_denormal(False)
+
+
 @pytest.fixture
 def run_cli(monkeypatch, capsys):
     """Run ``jsrte ARGS`` in this process: (exit status, stdout, stderr)."""

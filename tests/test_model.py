@@ -185,14 +185,21 @@ def test_evaluate_model_scores_both_sets_and_never_overwrites_without_asking(tmp
     assert json.loads(report.read_text())["rows"] == written["rows"][:1]
 
 
-def test_flush_denormals_makes_floats_below_the_normal_range_zero():
-    from jsrte.model.decoder import flush_denormals
+def test_denormals_are_flushed_inside_the_block_and_as_before_after_it():
+    from jsrte.model.decoder import denormals_flushed, flushing_denormals
 
-    tiny = torch.tensor([1e-39, 1.0], dtype=torch.float32)  # 1e-39: a float32 denormal
+    torch.set_flush_denormal(False)
+    if not torch.set_flush_denormal(False) or flushing_denormals():
+        pytest.skip("this CPU cannot flush denormals")
+    with denormals_flushed():
+        assert flushing_denormals()
+        assert (torch.tensor([1e-38, 1.0]) * 0.1).tolist() == [0.0, pytest.approx(0.1)]  # 1e-39: flushed
+    assert not flushing_denormals()
+    assert (torch.tensor([1e-38]) * 0.1).item() > 0
+    torch.set_flush_denormal(True)
     try:
-        if not flush_denormals():
-            pytest.skip("this CPU cannot flush denormals")
-        assert (tiny * 1.0).tolist() == [0.0, 1.0]
+        with denormals_flushed():
+            pass
+        assert flushing_denormals()  # a caller's own setting is left as it was
     finally:
         torch.set_flush_denormal(False)
-    assert (tiny * 1.0)[0].item() > 0

@@ -16,7 +16,7 @@ from jsrte.fit.params import Init, LatentPrior
 from jsrte.fit.query import SdfQuery
 from jsrte.metrics.surface import bounding_sphere, fscore
 from jsrte.model.checkpoint import DeepSdfModel
-from jsrte.model.decoder import Decoder, decoder_device, flush_denormals, uses_bfloat16
+from jsrte.model.decoder import Decoder, decoder_device, denormals_flushed, uses_bfloat16
 from jsrte.model.meshing import decode_mesh
 from jsrte.presets import FitSettings
 from jsrte.result import FitResult, HypothesisReport
@@ -90,6 +90,7 @@ def minimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
                     progress=progress, finisher=finisher)
 
 
+@denormals_flushed()
 def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
               inits: list[Init] | None = None, n_hypotheses: int | None = None,
               fixed: frozenset[str] | None = None, seed: int = 0, progress: bool = False,
@@ -102,10 +103,9 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     at their start (default: ψ and ρ when the query knows its up axis and ``settings.hold_axis``).
     ``assess``: fill the quality block and the flag (a quick fit that only ranks candidates and
     classes needs neither; its ``quality`` stays empty and its ``flag`` None). Denormal floats are
-    flushed to zero on the calling thread from then on (``jsrte.model.decoder.flush_denormals``).
+    flushed to zero on the calling thread while it runs (``jsrte.model.decoder.denormals_flushed``).
     """
     started = time.perf_counter()
-    flush_denormals()
     settings = sized(model, settings)
     if fixed is None:
         fixed = AXIS_PARAMETERS if settings.hold_axis and query.up is not None else frozenset()

@@ -8,6 +8,8 @@ Optional Fourier features of x (``pe_frequencies``) help thin parts at a small c
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 
 import torch
@@ -17,8 +19,8 @@ from torch.nn.utils.parametrizations import weight_norm
 from jsrte.model.config import ARCHITECTURES, DecoderConfig
 from jsrte.timing import count_evaluations
 
-__all__ = ["ARCHITECTURES", "Decoder", "DecoderConfig", "count_parameters", "decoder_device", "flush_denormals",
-           "native_bfloat16", "uses_bfloat16"]
+__all__ = ["ARCHITECTURES", "Decoder", "DecoderConfig", "count_parameters", "decoder_device", "denormals_flushed",
+           "flush_denormals", "flushing_denormals", "native_bfloat16", "uses_bfloat16"]
 
 
 class Decoder(nn.Module):
@@ -108,8 +110,27 @@ def flush_denormals() -> bool:
     """Flush denormal floats (under 1.2e-38 in float32) to zero on the calling thread and the
     threads it starts from now on; False where the CPU cannot. A fit's float32 decoder passes
     meet enough of them to run 2.8 times slower on an Intel Xeon (docs/speed.md), and no SDF,
-    code or pose means anything at that size."""
+    code or pose means anything at that size. The commands call it once, before their threads
+    start; a library fit flushes only while it runs (:func:`denormals_flushed`)."""
     return bool(torch.set_flush_denormal(True))
+
+
+def flushing_denormals() -> bool:
+    """Whether the calling thread flushes denormal floats to zero now."""
+    return torch.tensor(1e-39, dtype=torch.float32).item() == 0.0
+
+
+@contextmanager
+def denormals_flushed() -> Iterator[None]:
+    """Denormal floats flushed to zero on the calling thread inside the block
+    (:func:`flush_denormals`), as they were after it."""
+    before = flushing_denormals()
+    flush_denormals()
+    try:
+        yield
+    finally:
+        if not before:
+            torch.set_flush_denormal(False)
 
 
 def uses_bfloat16(decoder_dtype: str, device: torch.device) -> bool:

@@ -188,7 +188,6 @@ def test_evaluate_model_scores_both_sets_and_never_overwrites_without_asking(tmp
 def test_denormals_are_flushed_inside_the_block_and_as_before_after_it():
     from jsrte.model.decoder import denormals_flushed, flushing_denormals
 
-    torch.set_flush_denormal(False)
     if not torch.set_flush_denormal(False) or flushing_denormals():
         pytest.skip("this CPU cannot flush denormals")
     with denormals_flushed():

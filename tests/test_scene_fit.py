@@ -309,6 +309,11 @@ def test_a_scene_asks_a_whole_about_every_part_some_class_explains(monkeypatch):
     scores = {0: 0.02, 1: 0.02, 2: 0.02, 3: 0.01, 4: 2 * PART_EXPLAINED}
     covered = judge_splits(tree, _screens(scores), {"m": None}, SCENE_SCREEN, 0)
     assert covered == {0, 1} and sorted(set(asked)) == [(0, 2), (0, 3), (1, 3)]
+    # the same ratios given (as recorded elsewhere) judge the same
+    known = {(1, 3): 3.0, (0, 3): 3.0}
+    given = judge_splits(tree, _screens(scores), {"m": None}, SCENE_SCREEN, 0,
+                         ratio=lambda w, p: known.get((w, p), 1.0))
+    assert given == {0, 1}
     # neither piece of 1 is explained, but 1 is: 0's fit is asked about 1 itself and about 2;
     # it explains both, so 0 is one object covering every part
     asked.clear()
@@ -317,6 +322,30 @@ def test_a_scene_asks_a_whole_about_every_part_some_class_explains(monkeypatch):
     covered = judge_splits(tree, _screens(scores), {"m": None}, SCENE_SCREEN, 0)
     assert covered == {1, 2, 3, 4} and sorted(set(asked)) == [(0, 1), (0, 2), (1, 3)]
 
+
+
+def test_a_parts_own_fit_counts_at_least_the_floor_of_its_radius(monkeypatch):
+    """How far a whole's fit lies from a part's points, over the part's own fit's distance: a
+    part fitted closer than ``explained_floor`` part radii counts as that far (two good fits
+    differ by noise there), a part fitted farther counts as it lies."""
+    from importlib import import_module
+    from types import SimpleNamespace
+
+    from jsrte.fit.scene import SCENE_SCREEN
+    from jsrte.fit.screen import Screened, ScreenSettings
+
+    screen = import_module("jsrte.fit.screen")  # jsrte.fit is also the function
+    distance = {}  # fit -> its |SDF| (m) at every point
+    monkeypatch.setattr(screen, "predicted_sdf", lambda model, result, points: np.full(len(points), distance[result]))
+    points = SimpleNamespace(surface=np.zeros((100, 3)))
+    whole = Screened("m", 0, None, "whole", 0.01, {"radius": 1.0})
+    part = Screened("m", 1, points, "part", 0.01, {"radius": 0.5})
+    assert SCENE_SCREEN.explained_floor == 0.02  # 1 cm for a part of radius 0.5 m
+    distance.update(whole=0.006, part=0.004)  # both within the floor: 0.006 / 0.01
+    assert screen.explained_ratio(None, whole, part, SCENE_SCREEN) == pytest.approx(0.6)
+    assert screen.explained_ratio(None, whole, part, ScreenSettings()) == pytest.approx(1.5)
+    distance.update(whole=0.03, part=0.02)  # the part's own fit beyond the floor: as it lies
+    assert screen.explained_ratio(None, whole, part, SCENE_SCREEN) == pytest.approx(1.5)
 
 def test_a_whole_holding_a_box_is_never_one_object(monkeypatch):
     """A whole that its fit explains as well as its parts is one object, unless one of its parts

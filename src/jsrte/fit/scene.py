@@ -212,7 +212,8 @@ class accuracy and F@5% (docs/clutter.md, "Whole scenes", step 3)."""
 
 
 SCENE_SCREEN = ScreenSettings(fit=replace(SCREEN_FIT, init_scale="both"),
-                              class_fit=replace(CLASS_FIT, init_scale="both"), final_size_margin=None)
+                              class_fit=replace(CLASS_FIT, init_scale="both"), final_size_margin=None,
+                              explained_floor=0.02)
 """The quick fits of a scene's candidates: every yaw starts at the height's scale and, where it
 differs by more than 10%, at the bounding sphere's too (``FitSettings.init_scale`` "both"), the
 forward-pass screen keeping the best four of all. Beds, sofas and tables vary in proportions far
@@ -494,7 +495,8 @@ def _query(cands: object, k: int, options: FitOptions) -> SdfQuery:
 
 
 def judge_splits(candidates: list, screened: dict[int, Choice | str], models: dict, settings: ScreenSettings,
-                 seed: int, boxes: set[int] = frozenset()) -> set[int]:
+                 seed: int, boxes: set[int] = frozenset(),
+                 ratio: Callable[[int, int], float] | None = None) -> set[int]:
     """The candidates that are not objects of their own, each split judged by the quick fits of
     its whole and its parts (``jsrte.fit.screen.split_or_whole``): a candidate scores its best
     class's screen score, and the whole's best fit must lie at most ``whole_explains`` times
@@ -506,7 +508,8 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     fitted to a table and the chair beside it explains the table's points well but not the
     chair's. A whole of which a part (or a part's part) is one of ``boxes`` holds several
     objects. ``screened``: candidate position -> its screens (or why it has none: a whole that
-    has none, or has a part with none, is not judged, its parts stand)."""
+    has none, or has a part with none, is not judged, its parts stand). ``ratio(whole, part)``:
+    that ratio where it is known already (None: from the best screens' fits)."""
     from jsrte.fit.screen import explained_ratio, split_or_whole
 
     def best(k: int) -> Screened:
@@ -522,6 +525,8 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
         for part, stands_for in zip(candidates[whole].parts, objects, strict=True):
             explained = [o for o in stands_for if best(o).score <= PART_EXPLAINED]
             parts.update(explained or ([part] if best(part).score <= PART_EXPLAINED else []))
+        if ratio is not None:
+            return max(ratio(whole, p) for p in parts)
         by_whole = best(whole)
         return max(explained_ratio(models[by_whole.model], by_whole, best(p), settings, seed,
                                    part_model=models[best(p).model]) for p in parts)

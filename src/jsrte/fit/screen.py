@@ -93,6 +93,9 @@ class ScreenSettings:
     whole_explains: float = 1.3
     """... and when its fitted surface lies at most this many times as far from its best
     part's points as the part's own fitted surface (:func:`explained_ratio`)."""
+    explained_floor: float = 0.0
+    """... the part's own fitted surface counted at least this many part radii from its points
+    (:func:`explained_ratio`): closer, two good fits differ by noise, not by what they explain."""
     class_fit: FitSettings = field(default_factory=lambda: CLASS_FIT)
     """The fit of a whole whose class is in contention (:func:`class_scores`)."""
     class_refit_margin: float = 0.02
@@ -629,14 +632,22 @@ def explained_ratio(model: DeepSdfModel, whole: Screened, part: Screened, settin
                     seed: int = 0, part_model: DeepSdfModel | None = None) -> float:
     """How far the fitted surface of ``whole`` (a fit of ``model``) lies from the points of
     ``part``, over how far the part's own fitted surface lies (a fit of ``part_model``, default
-    ``model``): mean |SDF| at up to ``surface_points`` of the part's points, each capped at
-    ``residual_cap`` part radii."""
+    ``model``), that counted at least ``explained_floor`` part radii: mean |SDF| at up to
+    ``surface_points`` of the part's points, each capped at ``residual_cap`` part radii."""
     surface = part.query.surface
     pick = np.random.default_rng(seed).permutation(len(surface))[: settings.surface_points]
-    cap = settings.residual_cap * part.parts["radius"]
+    radius = part.parts["radius"]
+    cap = settings.residual_cap * radius
     own = np.minimum(np.abs(predicted_sdf(part_model or model, part.result, surface[pick])), cap).mean()
     by_whole = np.minimum(np.abs(predicted_sdf(model, whole.result, surface[pick])), cap).mean()
-    return float(by_whole / max(own, 1e-12))
+    return distance_ratio(float(by_whole), float(own), radius, settings)
+
+
+def distance_ratio(by_whole: float, own: float, radius: float, settings: ScreenSettings) -> float:
+    """``by_whole`` over ``own`` (mean distances, m, of a whole's and a part's own fitted surface
+    from the part's points), ``own`` counted at least ``explained_floor`` times the part's
+    ``radius`` (m) (:func:`explained_ratio`)."""
+    return by_whole / max(own, settings.explained_floor * radius, 1e-12)
 
 
 def choose_class(query: SdfQuery, models: dict[str, DeepSdfModel], *,

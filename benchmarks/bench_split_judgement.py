@@ -76,7 +76,7 @@ def _record_room(room_dir: Path, room: int, seed: int, cache: Path) -> tuple[int
     from jsrte.fit import load_models
     from jsrte.fit.query import scan_candidates
     from jsrte.fit.scene import SCENE_BOXES, SCENE_FIT_VEIL, SCENE_SCREEN, SCENE_SEGMENT, _screen_candidate
-    from jsrte.fit.screen import predicted_sdf
+    from jsrte.fit.screen import part_distance
     from jsrte.model.decoder import flush_denormals
     from jsrte.options import FitOptions
     from jsrte.presets import SCENE_PRESET
@@ -104,10 +104,7 @@ def _record_room(room_dir: Path, room: int, seed: int, cache: Path) -> tuple[int
     fitted = {k: min(c.screened, key=lambda s: s.score) for k, c in screened.items() if not isinstance(c, str)}
 
     def distance(k: int, part: int) -> float:
-        surface = fitted[part].query.surface
-        pick = np.random.default_rng(options.seed).permutation(len(surface))[: screen.surface_points]
-        sdf = predicted_sdf(models[fitted[k].model], fitted[k].result, surface[pick])
-        return float(np.minimum(np.abs(sdf), screen.residual_cap * fitted[part].parts["radius"]).mean())
+        return part_distance(models[fitted[k].model], fitted[k], fitted[part], screen, options.seed)
 
     def below(k: int) -> list[int]:
         return [q for p in candidates[k].parts for q in [p, *below(p)]]

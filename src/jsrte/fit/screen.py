@@ -634,13 +634,20 @@ def explained_ratio(model: DeepSdfModel, whole: Screened, part: Screened, settin
     ``part``, over how far the part's own fitted surface lies (a fit of ``part_model``, default
     ``model``), that counted at least ``explained_floor`` part radii: mean |SDF| at up to
     ``surface_points`` of the part's points, each capped at ``residual_cap`` part radii."""
+    own = part_distance(part_model or model, part, part, settings, seed)
+    by_whole = part_distance(model, whole, part, settings, seed)
+    return distance_ratio(by_whole, own, part.parts["radius"], settings)
+
+
+def part_distance(model: DeepSdfModel, fitted: Screened, part: Screened, settings: ScreenSettings,
+                  seed: int = 0) -> float:
+    """Mean |SDF| (m) of the fitted surface of ``fitted`` (a fit of ``model``) at up to
+    ``surface_points`` of the points of ``part`` (drawn with ``seed``), each capped at
+    ``residual_cap`` part radii."""
     surface = part.query.surface
     pick = np.random.default_rng(seed).permutation(len(surface))[: settings.surface_points]
-    radius = part.parts["radius"]
-    cap = settings.residual_cap * radius
-    own = np.minimum(np.abs(predicted_sdf(part_model or model, part.result, surface[pick])), cap).mean()
-    by_whole = np.minimum(np.abs(predicted_sdf(model, whole.result, surface[pick])), cap).mean()
-    return distance_ratio(float(by_whole), float(own), radius, settings)
+    cap = settings.residual_cap * part.parts["radius"]
+    return float(np.minimum(np.abs(predicted_sdf(model, fitted.result, surface[pick])), cap).mean())
 
 
 def distance_ratio(by_whole: float, own: float, radius: float, settings: ScreenSettings) -> float:

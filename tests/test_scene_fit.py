@@ -340,9 +340,9 @@ def test_a_parts_own_fit_counts_at_least_the_floor_of_its_radius(monkeypatch):
     points = SimpleNamespace(surface=np.zeros((100, 3)))
     whole = Screened("m", 0, None, "whole", 0.01, {"radius": 1.0})
     part = Screened("m", 1, points, "part", 0.01, {"radius": 0.5})
-    assert SCENE_SCREEN.explained_floor == 0.02  # 1 cm for a part of radius 0.5 m
-    distance.update(whole=0.006, part=0.004)  # both within the floor: 0.006 / 0.01
-    assert screen.explained_ratio(None, whole, part, SCENE_SCREEN) == pytest.approx(0.6)
+    assert SCENE_SCREEN.explained_floor == 0.03  # 1.5 cm for a part of radius 0.5 m
+    distance.update(whole=0.006, part=0.004)  # both within the floor: 0.006 / 0.015
+    assert screen.explained_ratio(None, whole, part, SCENE_SCREEN) == pytest.approx(0.4)
     assert screen.explained_ratio(None, whole, part, ScreenSettings()) == pytest.approx(1.5)
     distance.update(whole=0.03, part=0.02)  # the part's own fit beyond the floor: as it lies
     assert screen.explained_ratio(None, whole, part, SCENE_SCREEN) == pytest.approx(1.5)

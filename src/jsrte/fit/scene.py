@@ -213,16 +213,17 @@ class accuracy and F@5% (docs/clutter.md, "Whole scenes", step 3)."""
 
 SCENE_SCREEN = ScreenSettings(fit=replace(SCREEN_FIT, init_scale="both"),
                               class_fit=replace(CLASS_FIT, init_scale="both"), final_size_margin=None,
-                              explained_floor=0.02)
+                              explained_floor=0.03)
 """The quick fits of a scene's candidates: every yaw starts at the height's scale and, where it
 differs by more than 10%, at the bounding sphere's too (``FitSettings.init_scale`` "both"), the
 forward-pass screen keeping the best four of all. Beds, sofas and tables vary in proportions far
 more than chairs; a bed's quick fit started from its height alone can end far off, and the
 judgement then cuts the bed into pieces. A scene weighs each fit's size after the class is
-chosen instead (:data:`SIZE_MARGIN`). A part's own fit counts at least 0.02 of its radius from
-its points when a whole is judged against it (``explained_floor``): on the tuning rooms (100-149
-of seed 0, 194 pieces of furniture; ``benchmarks/bench_split_judgement.py``) 153 kept a candidate
-of their own without it, 157-158 with 0.015-0.03, and 0.04 kept four more wholes of two objects."""
+chosen instead (:data:`SIZE_MARGIN`). A part's own fit counts at least 0.03 of its radius from
+its points when a whole is judged against it (``explained_floor``): on the tuning rooms (100-169
+of seed 0, 282 pieces of furniture; ``benchmarks/bench_split_judgement.py``) 217 kept a candidate
+of their own without it, 222 with 0.02, 225 with 0.03 (the most), and 0.035-0.04 kept two to five
+more wholes of two objects."""
 
 
 BOX_CLASS = "box"

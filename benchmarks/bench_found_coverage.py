@@ -39,7 +39,7 @@ def read_rows(paths: list[Path]) -> list[dict]:
 
 
 def replay(rows: list[dict], bound: float) -> dict[str, float | int]:
-    """Counts and rates of ``rows`` were every fit covered less than ``bound`` no object."""
+    """Counts and rates of ``rows`` if every fit covered less than ``bound`` were no object."""
     def kept(row: dict) -> bool:
         return row["coverage"] is None or row["coverage"] >= bound
 

@@ -162,3 +162,54 @@ def test_where_both_compared_fits_lie_outside_their_sizes_the_third_class_is_fit
     assert [name for name, _ in fitted] == ["sofa", "table", "bed"] and fitted[2][1] is query
     assert result is fits["bed"] and result.info["class"]["final"]["in_sizes"] == {
         "sofa": False, "table": False, "bed": True}
+
+
+@pytest.mark.parametrize("far_code", [None, 1.1])
+def test_where_both_compared_fits_need_a_far_code_the_third_class_is_fitted_on_the_best_object(monkeypatch,
+                                                                                              far_code):
+    """A sofa scan whose screen ranks bed, table, sofa within the margin: the bed and the table
+    fits both need codes far out among their training codes (1.9, 1.35). With ``final_far_code``
+    1.1 neither is the object's class: the sofa, third, is fitted on the bed's object, needs a
+    typical code (0.6) and wins; without it the table stays."""
+    query, _ = _ball_and_blob()
+    models = {name: DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": name})
+              for name in ("bed", "table", "sofa", "chair")}
+    fits = {"bed": _fit(1.0, 1.9), "table": _fit(1.0, 1.35), "sofa": _fit(1.0, 0.6)}
+    fitted = _stub_full_fits(monkeypatch, fits)
+    other = SdfQuery(query.surface[:10], np.zeros(10), query.surface[:10])
+    screen_record = {"chosen": "bed", "chosen_by": "fit", "margin": 0.0003, "refitted": [],
+                     "scores": {"bed": 0.0194, "table": 0.0197, "sofa": 0.0235, "chair": 0.063}}
+    settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02, final_size_margin=None,
+                              final_far_code=far_code)
+    options = type("Options", (), {"seed": 0})()
+    result = fit_contenders({"bed": query, "table": other}, models, options, screen_record, settings=settings)
+    if far_code is None:
+        assert [name for name, _ in fitted] == ["bed", "table"] and result is fits["table"]
+        return
+    assert [name for name, _ in fitted] == ["bed", "table", "sofa"] and fitted[2][1] is query
+    final = result.info["class"]["final"]
+    assert result is fits["sofa"] and final["compared"] == ["bed", "table", "sofa"] and final["first_all_far"]
+    assert final["scores"]["sofa"] == pytest.approx(0.0235 + 0.02 * 0.6)
+
+
+def test_after_every_first_fit_needed_a_far_code_only_a_typical_one_can_win(monkeypatch):
+    """As above, but the sofa's screen score (0.035) puts its final score (0.047) above the
+    table's (0.0467): the table's far code rules it out all the same. Where the first two were
+    not both far (the table's code 1.05), the table wins on its final score and no third class
+    is fitted."""
+    query, _ = _ball_and_blob()
+    models = {name: DeepSdfModel(SphereDecoder(), torch.zeros(1, 2), {"name": name})
+              for name in ("bed", "table", "sofa")}
+    screen_record = {"chosen": "bed", "chosen_by": "fit", "margin": 0.0003, "refitted": [],
+                     "scores": {"bed": 0.0194, "table": 0.0197, "sofa": 0.035}}
+    settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02, final_size_margin=None,
+                              final_far_code=1.1, final_margin=0.035)
+    options = type("Options", (), {"seed": 0})()
+    fits = {"bed": _fit(1.0, 1.9), "table": _fit(1.0, 1.35), "sofa": _fit(1.0, 0.6)}
+    _stub_full_fits(monkeypatch, fits)
+    result = fit_contenders({"bed": query, "table": query}, models, options, screen_record, settings=settings)
+    assert result is fits["sofa"] and result.info["class"]["final"]["scores"]["sofa"] > 0.0197 + 0.02 * 1.35
+    fits["table"] = _fit(1.0, 1.05)
+    fitted = _stub_full_fits(monkeypatch, fits)
+    result = fit_contenders({"bed": query, "table": query}, models, options, screen_record, settings=settings)
+    assert [name for name, _ in fitted] == ["bed", "table"] and result is fits["table"]

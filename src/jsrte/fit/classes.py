@@ -59,13 +59,14 @@ def final_score(class_score: float, code: float | None, settings: ScreenSettings
 
 def decide(class_scores: dict[str, float], codes: dict[str, float | None],
            settings: ScreenSettings = ScreenSettings(),
-           in_sizes: dict[str, bool | None] | None = None) -> tuple[str, dict[str, float]]:
+           admissible: dict[str, bool | None] | None = None) -> tuple[str, dict[str, float]]:
     """The class of lowest :func:`final_score` among the fully fitted ``codes`` (class -> its
     fit's code ratio; ``class_scores``: the screen's), and each one's final score. Where
-    ``in_sizes`` (class -> whether its fit lies within its class's sizes; None: unknown) says
-    some fits lie outside and others do not, only the others can win."""
+    ``admissible`` (class -> whether its fit may be the object's class: False where it lies
+    outside its class's sizes, or needed a code beyond ``final_far_code`` once every class first
+    compared did; None: unknown) rules some fits out and not others, only the others can win."""
     scores = {name: final_score(class_scores[name], code, settings) for name, code in codes.items()}
-    eligible = [name for name in scores if (in_sizes or {}).get(name) is not False] or list(scores)
+    eligible = [name for name in scores if (admissible or {}).get(name) is not False] or list(scores)
     return min(eligible, key=scores.__getitem__), scores
 
 
@@ -87,28 +88,33 @@ def fit_contenders(objects: dict[str, SdfQuery], models: dict[str, DeepSdfModel]
     """Fit the best contending class's object in full (``objects``: class -> its object, the
     screen's best first; ``options``: the fit's ``FitOptions``); where its code is atypical
     (ratio above ``final_code_max``) or its size none of its class's (:func:`within_sizes`,
-    ``final_size_margin``), fit the others too; where every fit lies outside its sizes, the
-    next contending classes (``final_size_classes``) too, on the best class's object. The lowest
-    final score among the fits within their sizes wins (:func:`decide`).
+    ``final_size_margin``), fit the others too; where every fit lies outside its sizes, or every
+    one needed a code beyond ``final_far_code``, the next contending classes
+    (``final_size_classes``) too, on the best class's object, until one does not. The lowest
+    final score among the fits within their sizes (and, after every class first compared needed
+    a far code, among those that did not) wins (:func:`decide`).
 
     The kept fit's fit.json ``class`` block is ``class_record`` (the screen's: its ``scores`` are
     the class scores) with ``chosen``, ``chosen_by`` ("fit": the screen; "final fit": the final
     scores) and ``final``: the classes ``compared`` (fitted in full), each one's ``terms``
     (:func:`final_terms`), ``in_sizes`` and final ``scores``, the ``margin`` between the best
-    two, and each compared fit's decoder evaluations and seconds."""
+    two, ``far_code`` and ``first_all_far`` (whether every class first compared needed a code
+    beyond it), and each compared fit's decoder evaluations and seconds."""
     compared = _Compared(models, objects, options, settings, progress)
     for name, query in objects.items():
         compared.fit(name, query)
         if len(compared.results) == 1 and compared.settles(name):
             break
-    if all(inside is False for inside in compared.in_sizes.values()):
+    if compared.none_fits():
+        compared.all_far = compared.all_beyond_far_code()
         first = next(iter(objects.values()))
         wider = contending(class_record["scores"], replace(settings, final_classes=settings.final_size_classes))
         for name in [n for n in wider if n not in compared.results and n in models]:
-            if compared.fit(name, first) is not False:
+            compared.fit(name, first)
+            if not compared.none_fits():
                 break
     winner, scores = decide(class_record["scores"], {k: t["code"] for k, t in compared.terms.items()}, settings,
-                            compared.in_sizes)
+                            compared.admissible())
     result = compared.results[winner]
     result.info["class"] = class_record | {"chosen": winner,
                                            "chosen_by": "final fit" if len(compared.results) > 1 else "fit",
@@ -127,6 +133,8 @@ class _Compared:
         self.results: dict[str, FitResult] = {}
         self.terms: dict[str, dict[str, float | None]] = {}
         self.in_sizes: dict[str, bool | None] = {}
+        self.all_far = False
+        """Whether every class first compared needed a code beyond ``final_far_code``."""
 
     def fit(self, name: str, query: SdfQuery) -> bool | None:
         """Fit class ``name`` to ``query`` in full; whether its fit lies within its sizes."""
@@ -138,6 +146,27 @@ class _Compared:
         self.in_sizes[name] = within_sizes(model, self.results[name], self.settings.final_size_margin)
         return self.in_sizes[name]
 
+    def beyond_far_code(self, name: str) -> bool:
+        """Whether ``name``'s fit needed a code beyond ``final_far_code`` (never where it is None)."""
+        far, code = self.settings.final_far_code, self.terms[name]["code"]
+        return far is not None and code is not None and code > far
+
+    def all_beyond_far_code(self) -> bool:
+        """Whether every fit so far needed a code beyond ``final_far_code``."""
+        return all(self.beyond_far_code(name) for name in self.terms)
+
+    def none_fits(self) -> bool:
+        """Whether every fit so far lies outside its class's sizes, or every one needed a code
+        beyond ``final_far_code``: no compared class is the object's."""
+        return all(inside is False for inside in self.in_sizes.values()) or self.all_beyond_far_code()
+
+    def admissible(self) -> dict[str, bool | None]:
+        """Class -> whether its fit may be the object's class (:func:`decide`): not where it lies
+        outside its sizes, nor, where every class first compared needed a code beyond
+        ``final_far_code``, where it needed one too; None where its sizes are unknown."""
+        return {name: False if self.all_far and self.beyond_far_code(name) else inside
+                for name, inside in self.in_sizes.items()}
+
     def settles(self, name: str) -> bool:
         """Whether ``name``'s fit alone settles the class: a typical code, a size of its class's."""
         code = self.terms[name]["code"]
@@ -147,6 +176,7 @@ class _Compared:
         """fit.json's ``final`` record of the comparison, with the final ``scores``."""
         ranked = sorted(scores.values())
         return {"compared": list(self.results), "code_max": self.settings.final_code_max,
+                "far_code": self.settings.final_far_code, "first_all_far": self.all_far,
                 "code_weight": self.settings.final_code_weight, "size_margin": self.settings.final_size_margin,
                 "in_sizes": self.in_sizes, "scores": {k: round(v, 5) for k, v in scores.items()},
                 "margin": round(ranked[1] - ranked[0], 5) if len(ranked) > 1 else None,

@@ -213,7 +213,7 @@ class accuracy and F@5% (docs/clutter.md, "Whole scenes", step 3)."""
 
 SCENE_SCREEN = ScreenSettings(fit=replace(SCREEN_FIT, init_scale="both"),
                               class_fit=replace(CLASS_FIT, init_scale="both"), final_size_margin=None,
-                              explained_floor=0.03)
+                              explained_floor=0.03, final_far_code=1.1)
 """The quick fits of a scene's candidates: every yaw starts at the height's scale and, where it
 differs by more than 10%, at the bounding sphere's too (``FitSettings.init_scale`` "both"), the
 forward-pass screen keeping the best four of all. Beds, sofas and tables vary in proportions far
@@ -223,7 +223,10 @@ chosen instead (:data:`SIZE_MARGIN`). A part's own fit counts at least 0.03 of i
 its points when a whole is judged against it (``explained_floor``): on the tuning rooms (100-169
 of seed 0, 282 pieces of furniture; ``benchmarks/bench_split_judgement.py``) 217 kept a candidate
 of their own without it, 222 with 0.02, 225 with 0.03 (the most), and 0.035-0.04 kept two to five
-more wholes of two objects."""
+more wholes of two objects. Where both classes fitted in full to settle a close screen needed a
+code beyond 1.1 times their training codes' median distance (``final_far_code``, the scene's
+flag bound on a code: :data:`SCENE_CODE_RATIO_MAX`), neither model knows the shape, and the
+third close class is fitted too (a sofa whose screen ranked bed and table first)."""
 
 
 BOX_CLASS = "box"
@@ -332,15 +335,18 @@ and the table's coverage bounds, the flag caught 25 of the 30 bad fits and flagg
 good ones (0.83 / 0.04)."""
 
 
-UNSURE_COVERED_MIN = 0.35
+UNSURE_COVERED_MIN = 0.43
 UNSURE_CLASS_MARGIN = 0.02
 """An object's fit is doubtful where its candidate's points cover less than
 :data:`UNSURE_COVERED_MIN` of its fitted surface and the screen left another class within
 :data:`UNSURE_CLASS_MARGIN` of its class (``class_margin``): a shape mostly guessed, of a class
-barely preferred (a sofa's half fitted as a bed, a bed's end as a sofa). On the tuning rooms
-(100-129 of seed 0) it caught 6 more of the 20 fits with F@5% < 0.7 and flagged one more of the
-37 with F@5% >= 0.85 (a bed at coverage 0.34, margin 0.008); coverage 0.34-0.38 with margins
-0.02-0.03 caught and flagged the same."""
+barely preferred (a sofa's half fitted as a bed, a bed's end as a sofa, a bed seen along one
+side). Chosen on the last fits of 66 tuning rooms (100-164, 168 of seed 0; 209 found pieces of
+furniture, 42 bad fits with F@5% < 0.7, 98 good ones with F@5% >= 0.85;
+``benchmarks/bench_unsure_coverage.py``): the bound that catches the most bad fits while
+flagging at most a tenth of the good ones, in the middle of the gap between the last bad fit it
+catches (0.422) and the next good fit (0.444). There the flag caught 36 of the 42 bad fits and
+flagged 9 of the 98 good ones (0.86 / 0.09), against 30 and 7 (0.71 / 0.07) at 0.35."""
 
 
 COVERED_FOUND = 0.23

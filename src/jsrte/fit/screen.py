@@ -128,9 +128,14 @@ class ScreenSettings:
     fit lies within its sizes wins over one whose fit does not. None: sizes are not weighed (nor
     where a model records none)."""
     final_size_classes: int = 3
-    """Where every class fitted in full lies outside its sizes, the next contending classes (up
-    to this many in all, each within ``final_margin`` of the best) are fitted in full on the best
-    class's object, until one lies within its sizes."""
+    """Where every class fitted in full lies outside its sizes (or needed a code beyond
+    ``final_far_code``), the next contending classes (up to this many in all, each within
+    ``final_margin`` of the best) are fitted in full on the best class's object, until one lies
+    within its sizes (and needs a code within it)."""
+    final_far_code: float | None = None
+    """Where every class fitted in full needed a code's ratio above this, none is the object's
+    class by its code, and the next contending classes are fitted too (``final_size_classes``);
+    None: never."""
     slab_m: float = 0.08
     """A candidate thinner than this (m) across its thinnest direction (:func:`thickness`) is a
     slab: a wall's remnant or one face of a box, never an object of a class with volume. Slabs

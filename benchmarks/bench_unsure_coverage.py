@@ -1,0 +1,76 @@
+"""How the coverage under which a barely preferred class makes a scene object's fit doubtful
+(``jsrte.fit.scene.UNSURE_COVERED_MIN``, with ``UNSURE_CLASS_MARGIN``) trades bad fits caught
+against good fits flagged, from ``jsrte experiment scenes`` rows.
+
+``python benchmarks/bench_unsure_coverage.py OBJECTS.csv [OBJECTS.csv ...] [--bounds 0.35,0.39,0.43]``
+
+Each CSV is the objects.csv of a scenes experiment (its ``outcome``, ``fscore``, ``flag``,
+``class_margin`` and ``quality_surface_coverage`` columns). The bound is replayed on the
+recorded fits of the found furniture (hits): a fit flagged ``ok`` whose class margin is below
+``UNSURE_CLASS_MARGIN`` and whose candidate's points cover less than the bound of its fitted
+surface becomes ``doubtful``. Only bounds at or above the one the rows were made with say
+anything (the rows' ``doubtful`` flags are kept). Printed per bound: the bad fits (F@5% < 0.7)
+and how many are flagged, the good ones (F@5% >= 0.85) and how many are flagged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+from jsrte.fit.scene import UNSURE_CLASS_MARGIN, UNSURE_COVERED_MIN
+
+DEFAULT_BOUNDS = (0.35, 0.37, 0.39, 0.41, 0.42, 0.43, 0.44, 0.45, 0.47)
+BAD_BELOW, GOOD_FROM = 0.7, 0.85
+
+
+def read_hits(paths: list[Path]) -> list[dict]:
+    """The found furniture of every objects.csv in ``paths``: each row's ``fscore``, whether it
+    was flagged ``doubtful``, its class ``margin`` and its ``coverage`` (None where not recorded)."""
+    def number(text: str | None) -> float | None:
+        return float(text) if text else None
+
+    hits = []
+    for path in paths:
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                if row["outcome"] == "hit":
+                    hits.append({"fscore": float(row["fscore"]), "doubtful": row["flag"] == "doubtful",
+                                 "margin": number(row.get("class_margin")),
+                                 "coverage": number(row.get("quality_surface_coverage"))})
+    return hits
+
+
+def flagged(hit: dict, bound: float) -> bool:
+    """Whether ``hit`` is doubtful with ``bound`` in place of the rows' class-margin coverage bound."""
+    unsure = hit["margin"] is not None and hit["margin"] < UNSURE_CLASS_MARGIN
+    return hit["doubtful"] or (unsure and hit["coverage"] is not None and hit["coverage"] < bound)
+
+
+def replay(hits: list[dict], bound: float) -> dict[str, int]:
+    """Bad and good fits of ``hits``, and how many of each ``bound`` flags."""
+    bad = [h for h in hits if h["fscore"] < BAD_BELOW]
+    good = [h for h in hits if h["fscore"] >= GOOD_FROM]
+    return {"bad": len(bad), "bad_caught": sum(flagged(h, bound) for h in bad),
+            "good": len(good), "good_flagged": sum(flagged(h, bound) for h in good)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("objects", nargs="+", type=Path, help="objects.csv of a scenes experiment")
+    parser.add_argument("--bounds", default=",".join(map(str, DEFAULT_BOUNDS)),
+                        help="comma-separated coverage bounds to replay")
+    args = parser.parse_args()
+    hits = read_hits(args.objects)
+    print(f"shipped bound: {UNSURE_COVERED_MIN} (class margin below {UNSURE_CLASS_MARGIN})")
+    print("| bound | bad fits caught | good fits flagged |")
+    print("|---|---|---|")
+    for bound in (float(b) for b in args.bounds.split(",")):
+        r = replay(hits, bound)
+        print(f"| {bound:g} | {r['bad_caught']} of {r['bad']} ({r['bad_caught'] / max(r['bad'], 1):.2f}) | "
+              f"{r['good_flagged']} of {r['good']} ({r['good_flagged'] / max(r['good'], 1):.2f}) |")
+
+
+if __name__ == "__main__":
+    main()

@@ -136,15 +136,14 @@ class _Compared:
         self.all_far = False
         """Whether every class first compared needed a code beyond ``final_far_code``."""
 
-    def fit(self, name: str, query: SdfQuery) -> bool | None:
-        """Fit class ``name`` to ``query`` in full; whether its fit lies within its sizes."""
+    def fit(self, name: str, query: SdfQuery) -> None:
+        """Fit class ``name`` to ``query`` in full, with its terms and whether it lies within its sizes."""
         from jsrte.fit import fit_recorded
 
         model = self.models[name]
         self.results[name] = fit_recorded(model, query, self.options, progress=self.progress)
         self.terms[name] = final_terms(model, self.results[name], self.objects, self.settings, seed=self.options.seed)
         self.in_sizes[name] = within_sizes(model, self.results[name], self.settings.final_size_margin)
-        return self.in_sizes[name]
 
     def beyond_far_code(self, name: str) -> bool:
         """Whether ``name``'s fit needed a code beyond ``final_far_code`` (never where it is None)."""

@@ -14,9 +14,10 @@ mean F@5% of the found objects (and with the misses counted as 0).
 
 from __future__ import annotations
 
-import argparse
 import csv
 from pathlib import Path
+
+from replay_bounds import rows_and_bounds
 
 from jsrte.fit.scene import COVERED_FOUND
 
@@ -55,16 +56,12 @@ def replay(rows: list[dict], bound: float) -> dict[str, float | int]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("objects", nargs="+", type=Path, help="objects.csv of a scenes experiment")
-    parser.add_argument("--bounds", default=",".join(map(str, DEFAULT_BOUNDS)),
-                        help="comma-separated coverage bounds to replay")
-    args = parser.parse_args()
-    rows = read_rows(args.objects)
+    paths, bounds = rows_and_bounds(__doc__, DEFAULT_BOUNDS)
+    rows = read_rows(paths)
     print(f"shipped bound: {COVERED_FOUND}")
     print("| bound | furniture | found | false detections | recall | precision | mean F@5% (misses 0) |")
     print("|---|---|---|---|---|---|---|")
-    for bound in (float(b) for b in args.bounds.split(",")):
+    for bound in bounds:
         r = replay(rows, bound)
         print(f"| {bound:g} | {r['furniture']} | {r['found']} | {r['false']} | {r['recall']:.3f} | "
               f"{r['precision']:.3f} | {r['mean_f']:.3f} ({r['mean_f_misses_0']:.3f}) |")

@@ -15,9 +15,10 @@ and how many are flagged, the good ones (F@5% >= 0.85) and how many are flagged.
 
 from __future__ import annotations
 
-import argparse
 import csv
 from pathlib import Path
+
+from replay_bounds import rows_and_bounds
 
 from jsrte.fit.scene import UNSURE_CLASS_MARGIN, UNSURE_COVERED_MIN
 
@@ -57,16 +58,12 @@ def replay(hits: list[dict], bound: float) -> dict[str, int]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("objects", nargs="+", type=Path, help="objects.csv of a scenes experiment")
-    parser.add_argument("--bounds", default=",".join(map(str, DEFAULT_BOUNDS)),
-                        help="comma-separated coverage bounds to replay")
-    args = parser.parse_args()
-    hits = read_hits(args.objects)
+    paths, bounds = rows_and_bounds(__doc__, DEFAULT_BOUNDS)
+    hits = read_hits(paths)
     print(f"shipped bound: {UNSURE_COVERED_MIN} (class margin below {UNSURE_CLASS_MARGIN})")
     print("| bound | bad fits caught | good fits flagged |")
     print("|---|---|---|")
-    for bound in (float(b) for b in args.bounds.split(",")):
+    for bound in bounds:
         r = replay(hits, bound)
         print(f"| {bound:g} | {r['bad_caught']} of {r['bad']} ({r['bad_caught'] / max(r['bad'], 1):.2f}) | "
               f"{r['good_flagged']} of {r['good']} ({r['good_flagged'] / max(r['good'], 1):.2f}) |")

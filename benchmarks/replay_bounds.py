@@ -1,5 +1,5 @@
 """The command line that the benches replaying a bound on ``jsrte experiment scenes`` rows share:
-``OBJECTS.csv [OBJECTS.csv ...] [--bounds B,B,...]``."""
+``OBJECTS.csv [OBJECTS.csv ...] [--bounds B,B,...]``, and for some a switch to another bound."""
 
 from __future__ import annotations
 
@@ -7,12 +7,19 @@ import argparse
 from pathlib import Path
 
 
-def rows_and_bounds(doc: str, default_bounds: tuple[float, ...]) -> tuple[list[Path], list[float]]:
+def rows_and_bounds(doc: str, default_bounds: tuple[float, ...],
+                    alternative: tuple[str, tuple[float, ...], str] | None = None) -> tuple:
     """The objects.csv paths and the bounds to replay, from the command line of a bench whose
-    module docstring is ``doc``."""
+    module docstring is ``doc``. With ``alternative`` (a switch, its default bounds and its help)
+    a third item: whether the switch was given (its bounds then the default)."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("objects", nargs="+", type=Path, help="objects.csv of a scenes experiment")
-    parser.add_argument("--bounds", default=",".join(map(str, default_bounds)),
-                        help="comma-separated coverage bounds to replay")
+    parser.add_argument("--bounds", help="comma-separated bounds to replay (default: "
+                        f"{','.join(map(str, default_bounds))})")
+    if alternative is not None:
+        parser.add_argument(alternative[0], action="store_true", help=alternative[2])
     args = parser.parse_args()
-    return args.objects, [float(b) for b in args.bounds.split(",")]
+    switched = alternative is not None and getattr(args, alternative[0].lstrip("-").replace("-", "_"))
+    defaults = alternative[1] if switched else default_bounds
+    bounds = [float(b) for b in args.bounds.split(",")] if args.bounds else list(defaults)
+    return (args.objects, bounds, switched) if alternative is not None else (args.objects, bounds)

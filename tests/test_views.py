@@ -77,31 +77,50 @@ def test_a_right_fit_is_not_seen_through_a_wrong_one_is(views):
     assert CameraViews.of_scan(np.zeros((3, 3)), None, np.zeros((1, 3))) is None
 
 
-def test_a_scene_fit_the_cameras_saw_through_is_doubtful(views):
-    """A ball fitted as a bed on the points of its seen front (0.4 of its surface): with the
-    cameras that saw the ball it is ``ok`` (the share seen through, not the bed's coverage bound,
-    judges it); with cameras that saw the wall where the ball is fitted, ``doubtful``; without
-    the cameras, the bed's coverage bound makes it ``doubtful``."""
+def ball_fitted_as_bed(seen_by: CameraViews | None) -> object:
+    """The ball fitted as a found bed on the points of its seen front (0.4 of its surface),
+    flagged and checked as a scene object whose scan's cameras are ``seen_by``
+    (``jsrte.fit.scene.SceneObject``)."""
     from types import SimpleNamespace
 
     import trimesh
 
-    from jsrte.fit.scene import CLASS_COVERED_MIN, COVERED_MIN, SEEN_THROUGH_MAX, SceneObject, _flag_scene_object
+    from jsrte.fit.scene import SceneObject, _flag_scene_object
 
-    sphere = trimesh.creation.icosphere(subdivisions=4)
-    placed = Sim3(BALL_RADIUS, np.eye(3), BALL_CENTRE)
     readings = np.concatenate([ball_before_wall(c) for c in CAMERAS])
     front = readings[np.linalg.norm(readings - BALL_CENTRE, axis=1) < BALL_RADIUS + 0.01]
+    result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=Sim3(BALL_RADIUS, np.eye(3), BALL_CENTRE),
+                             mesh_canonical=trimesh.creation.icosphere(subdivisions=4), flag="ok")
+    obj = SceneObject(0, 0, front, model="bed", result=result, views=seen_by)
+    _flag_scene_object(obj, seed=0)
+    return obj
 
-    def judged(seen_by: CameraViews | None) -> SimpleNamespace:
-        result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
-        _flag_scene_object(SceneObject(0, 0, front, model="bed", result=result, views=seen_by), seed=0)
-        return result
 
-    seen = judged(views)
+def test_a_scene_fit_the_cameras_saw_through_is_doubtful(views):
+    """The ball fitted as a bed: with the cameras that saw the ball it is ``ok`` (the share seen
+    through, not the bed's coverage bound, judges it); with cameras that saw the wall where the
+    ball is fitted, ``doubtful``; without the cameras, the bed's coverage bound makes it
+    ``doubtful``."""
+    from jsrte.fit.scene import CLASS_COVERED_MIN, COVERED_MIN, SEEN_THROUGH_MAX
+
+    seen = ball_fitted_as_bed(views).result
     assert COVERED_MIN < seen.quality["surface_coverage"] < CLASS_COVERED_MIN["bed"]
     assert seen.quality["seen_through"] < SEEN_THROUGH_MAX and seen.flag == "ok"
-    through = judged(views_of(radius=0.0))
+    through = ball_fitted_as_bed(views_of(radius=0.0)).result
     assert through.quality["seen_through"] > SEEN_THROUGH_MAX and through.flag == "doubtful"
-    unknown = judged(None)
+    unknown = ball_fitted_as_bed(None).result
     assert unknown.quality["seen_through"] is None and unknown.flag == "doubtful"
+
+
+def test_a_found_object_the_cameras_saw_through_is_no_object(views):
+    """The ball fitted as a bed where cameras saw the wall through it (more than
+    SEEN_THROUGH_FOUND_MAX of it) is dropped as ``unexplained``; where they saw the ball, or
+    where the scan does not say which camera saw each point, it stays found."""
+    from jsrte.fit.scene import SEEN_THROUGH_FOUND_MAX, _drop_seen_through
+
+    seen, through, unknown = (ball_fitted_as_bed(v) for v in (views, views_of(radius=0.0), None))
+    _drop_seen_through([seen, through, unknown])
+    assert through.result.quality["seen_through"] > SEEN_THROUGH_FOUND_MAX
+    assert through.status == "unexplained" and through.unexplained_by == "seen through"
+    assert "no bed stands there: the cameras saw through" in through.reason
+    assert seen.status == unknown.status == "ok" and seen.unexplained_by == unknown.unexplained_by == ""

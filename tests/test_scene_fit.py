@@ -133,7 +133,8 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
     there): it lies on none of them, so no model explains the candidate. It is written and listed
     as unexplained, with the share in its reason, but it is no object of the scene: scene.ply
     holds only the other's mesh and the counts say so. (The other, the room's table fitted by the
-    chair model in the smoke preset, covers 0.17 of its fit: the coverage bound is set aside.)"""
+    chair model in the smoke preset, covers 0.17 of its fit and is seen through on 0.55 of it:
+    the coverage and seen-through bounds are set aside.)"""
     import importlib
 
     import trimesh
@@ -156,6 +157,7 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
     monkeypatch.setattr(fitting, "fit_recorded", fit_then_move_the_first)
     monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "ESCAPE_PRESET", "smoke")  # not fitted again
     monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "COVERED_FOUND", 0.0)
+    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "SEEN_THROUGH_FOUND_MAX", 1.0)
     out = tmp_path / "scene"
     code, text, err = run_cli(monkeypatch, capsys, "fit", room_scan, "--scene", "--model", "chair", "--out", out,
                               "--threads", "1", "--no-progress", "--preset", "smoke")

@@ -27,7 +27,9 @@ place look alike before a fit. Then:
 5. of two objects whose fitted shapes share much of their volume (two fits of one object, from
    two of its pieces), the one whose fit lies on fewer of the points of both is no object
    (:func:`_drop_second_fits`); a table found by that second search gives way to any object
-   found before it.
+   found before it;
+6. an object whose fitted surface the scan's cameras saw through on much of it is no object
+   (:func:`_drop_seen_through`).
 
 A candidate whose fit fails (too few points, a degenerate cluster) is recorded as failed with
 the reason and the others go on; candidates the segmentation rejected are listed as skipped with

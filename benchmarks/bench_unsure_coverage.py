@@ -58,7 +58,7 @@ def replay(hits: list[dict], bound: float) -> dict[str, int]:
 
 
 def main() -> None:
-    paths, bounds = rows_and_bounds(__doc__, DEFAULT_BOUNDS)
+    paths, bounds, _ = rows_and_bounds(__doc__, DEFAULT_BOUNDS)
     hits = read_hits(paths)
     print(f"shipped bound: {UNSURE_COVERED_MIN} (class margin below {UNSURE_CLASS_MARGIN})")
     print("| bound | bad fits caught | good fits flagged |")

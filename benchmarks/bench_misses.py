@@ -25,6 +25,12 @@ import json
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
+
+from jsrte.fit.query import scan_candidates
+from jsrte.fit.scene import SCENE_SEGMENT
+from jsrte.scans.segment import Candidate
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -43,11 +49,6 @@ def main() -> None:
 
 def _room(out_dir: Path, room: int, lost: list[dict]) -> None:
     """Print what became of room ``room``'s missed objects and false detections ``lost`` (rows)."""
-    import numpy as np
-
-    from jsrte.fit.query import scan_candidates
-    from jsrte.fit.scene import SCENE_SEGMENT
-
     room_dir = out_dir / "rooms" / f"{room:03d}"
     truth = json.loads((room_dir / "scene.json").read_text())
     labels = np.load(room_dir / "labels.npy")
@@ -87,10 +88,8 @@ def _fates(scene: dict) -> dict[int, str]:
     return fates
 
 
-def _describe(k: int, points: object, candidate: object) -> str:
-    """Candidate ``k``: its points by label, its parent and parts."""
-    import numpy as np
-
+def _describe(k: int, points: np.ndarray, candidate: Candidate) -> str:
+    """Candidate ``k``: its points (their (m,) true labels) by label, its parent and parts."""
     values, counts = np.unique(points, return_counts=True)
     by_label = ", ".join(f"{v}: {c}" for v, c in zip(values.tolist(), counts.tolist(), strict=True))
     tree = "".join([f", part of {candidate.parent}" if candidate.parent is not None else "",

@@ -662,7 +662,7 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
 
     def found(index: int, model: str, x: float, share: float, points: np.ndarray) -> SceneObject:
         placed = Sim3(1.0, np.eye(3), np.array([x, 0.0, 0.0]))
-        result = SimpleNamespace(quality={"inlier_share": share}, transform=placed, latent=np.zeros(4))
+        result = SimpleNamespace(quality={"inlier_share": share}, transform=placed, latent=np.zeros(4), mesh=None)
         return SceneObject(index, index, points, model=model, result=result)
 
     b = found(0, "chair", 0.3, 0.95, on_a[on_a[:, 0] > 0.6])
@@ -679,6 +679,47 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     b.status, b.unexplained_by, b.reason = "ok", "", ""
     _drop_second_fits([b, a, c, d], models, seed=0, newcomers=[a])
     assert a.status == "unexplained" and "object 0 (chair)" in a.reason and b.status == c.status == "ok"
+
+
+def test_two_fits_of_one_class_whose_centres_nearly_meet_are_one_object(monkeypatch):
+    """Two chairs fitted 0.2 radii apart, their shapes set to share no volume (two thin chairs
+    turned differently share little), are two fits of one chair: the one on fewer of the points
+    of both goes, its reason naming the distance. A sofa as near stays (no two chairs stand so
+    close, but a chair stands under a table), and so does a chair farther than
+    SECOND_FIT_CENTRES radii."""
+    import importlib
+    from types import SimpleNamespace
+
+    import torch
+    import trimesh
+
+    from jsrte.fit.scene import SECOND_FIT_CENTRES, SceneObject, _drop_second_fits
+    from jsrte.geometry.sim3 import Sim3
+
+    class Ball(torch.nn.Module):
+        def forward(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+            return x.norm(dim=-1) - 0.8
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "_shared_volume", lambda *args: 0.0)
+    models = {"sofa": SimpleNamespace(decoder=Ball()), "chair": SimpleNamespace(decoder=Ball())}
+    directions = np.random.default_rng(0).normal(size=(2000, 3))
+    on_a = 0.8 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+    def found(index: int, model: str, x: float, points: np.ndarray) -> SceneObject:
+        centre = np.array([x, 0.0, 0.0])
+        mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.8).apply_translation(centre)
+        result = SimpleNamespace(quality={"inlier_share": 0.9}, transform=Sim3(1.0, np.eye(3), centre),
+                                 latent=np.zeros(4), mesh=mesh)
+        return SceneObject(index, index, points, model=model, result=result)
+
+    b = found(0, "chair", 0.2, on_a[on_a[:, 0] > 0.6])
+    a = found(1, "chair", 0.0, on_a[on_a[:, 0] <= 0.6])
+    c = found(2, "sofa", 0.2, on_a[:100])
+    d = found(3, "chair", -SECOND_FIT_CENTRES - 0.05, on_a[:100] - [SECOND_FIT_CENTRES + 0.05, 0.0, 0.0])
+    _drop_second_fits([b, a, c, d], models, seed=0)
+    assert b.status == "unexplained" and b.unexplained_by == "second fit"
+    assert b.reason == "a second fit of object 1 (chair): their centres lie 0.20 radii apart"
+    assert [o.status for o in (a, c, d)] == ["ok", "ok", "ok"]
 
 
 def test_points_a_found_objects_fit_leaves_unexplained_are_fitted_as_an_object_of_their_own(monkeypatch):

@@ -886,12 +886,12 @@ def _add_leftover_candidates(objects: list[SceneObject], cands: object, models: 
 def _drop_second_fits(objects: list[SceneObject], models: dict, seed: int,
                       newcomers: list[SceneObject] | None = None) -> None:
     """Of two found objects whose fitted shapes share at least :data:`SECOND_FIT_SHARE` of a
-    shape's volume (:func:`_shared_volume`; the pairs sharing most first), or that are of one class
-    with centres closer than :data:`SECOND_FIT_CENTRES` radii (:func:`_centres_apart`; those pairs
-    first), keep the one whose fit lies on more of the points of both (:func:`_points_on_fit`);
-    the other becomes ``unexplained`` (a second fit of the one kept). With ``newcomers`` (among ``objects``), only
-    the pairs that hold one are weighed, and of a newcomer and an object found before, the
-    newcomer goes."""
+    shape's volume (:func:`_shared_volume`; the pairs sharing most first), or that are of one
+    class with centres closer than :data:`SECOND_FIT_CENTRES` radii (:func:`_centres_apart`;
+    those pairs first), keep the one whose fit lies on more of the points of both
+    (:func:`_points_on_fit`); the other becomes ``unexplained`` (a second fit of the one kept).
+    With ``newcomers`` (among ``objects``), only the pairs that hold one are weighed, and of a
+    newcomer and an object found before, the newcomer goes."""
     from itertools import combinations
 
     new = None if newcomers is None else {id(o) for o in newcomers}

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import torch
 
 from cli_runner import run_cli
 from jsrte.errors import JsrteError
@@ -638,6 +639,13 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
     assert len(fitted) == 2 and untried.model == "table" and untried.status == "unexplained"
 
 
+class BallDecoder(torch.nn.Module):
+    """A decoder whose shape is a ball of radius 0.8 whatever the code: SDF (n,) of points x (n, 3)."""
+
+    def forward(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        return x.norm(dim=-1) - 0.8
+
+
 def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_dropped():
     """Four spheres of radius 0.8 m fitted as found objects: A's points cover its sphere; B, 0.3 m
     from A, was fitted to a cap of A's points and shares most of its volume: of the points of
@@ -646,17 +654,11 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     stay."""
     from types import SimpleNamespace
 
-    import torch
-
     from jsrte.fit.quality import volume_inside
     from jsrte.fit.scene import SECOND_FIT_SHARE, SceneObject, _drop_second_fits
     from jsrte.geometry.sim3 import Sim3
 
-    class Ball(torch.nn.Module):
-        def forward(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-            return x.norm(dim=-1) - 0.8
-
-    models = {"sofa": SimpleNamespace(decoder=Ball()), "chair": SimpleNamespace(decoder=Ball())}
+    models = {"sofa": SimpleNamespace(decoder=BallDecoder()), "chair": SimpleNamespace(decoder=BallDecoder())}
     directions = np.random.default_rng(0).normal(size=(2000, 3))
     on_a = 0.8 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
 
@@ -669,9 +671,9 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     a = found(1, "sofa", 0.0, 0.9, on_a[on_a[:, 0] <= 0.6])
     c = found(2, "sofa", 1.6, 0.7, on_a + [1.6, 0.0, 0.0])
     d = found(3, "sofa", 5.0, 0.6, on_a + [5.0, 0.0, 0.0])
-    inside = volume_inside(Ball(), b.result, Ball(), a.result)
+    inside = volume_inside(BallDecoder(), b.result, BallDecoder(), a.result)
     assert 0.6 < inside < 0.8  # two balls of radius 0.8, 0.3 apart: 72% of each in the other
-    assert volume_inside(Ball(), c.result, Ball(), a.result) == 0.0
+    assert volume_inside(BallDecoder(), c.result, BallDecoder(), a.result) == 0.0
     _drop_second_fits([b, a, c, d], models, seed=0)
     assert [o.status for o in (a, c, d)] == ["ok", "ok", "ok"] and inside >= SECOND_FIT_SHARE
     assert b.status == "unexplained" and b.unexplained_by == "second fit" and "object 1 (sofa)" in b.reason
@@ -690,18 +692,13 @@ def test_two_fits_of_one_class_whose_centres_nearly_meet_are_one_object(monkeypa
     import importlib
     from types import SimpleNamespace
 
-    import torch
     import trimesh
 
     from jsrte.fit.scene import SECOND_FIT_CENTRES, SceneObject, _drop_second_fits
     from jsrte.geometry.sim3 import Sim3
 
-    class Ball(torch.nn.Module):
-        def forward(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-            return x.norm(dim=-1) - 0.8
-
     monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "_shared_volume", lambda *args: 0.0)
-    models = {"sofa": SimpleNamespace(decoder=Ball()), "chair": SimpleNamespace(decoder=Ball())}
+    models = {"sofa": SimpleNamespace(decoder=BallDecoder()), "chair": SimpleNamespace(decoder=BallDecoder())}
     directions = np.random.default_rng(0).normal(size=(2000, 3))
     on_a = 0.8 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
 
@@ -729,7 +726,6 @@ def test_points_a_found_objects_fit_leaves_unexplained_are_fitted_as_an_object_o
     (``leftover_of`` the first) and fitted as a new object, numbered after the others."""
     from types import SimpleNamespace
 
-    import torch
     import trimesh
 
     from jsrte.fit import scene as scene_module
@@ -737,10 +733,6 @@ def test_points_a_found_objects_fit_leaves_unexplained_are_fitted_as_an_object_o
     from jsrte.geometry.sim3 import Sim3
     from jsrte.options import FitOptions
     from jsrte.scans.segment import Candidate
-
-    class Ball(torch.nn.Module):
-        def forward(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-            return x.norm(dim=-1) - 0.8
 
     ball = trimesh.creation.icosphere(subdivisions=4, radius=0.8)
     ball.apply_translation([0.0, 0.8, 0.0])
@@ -759,7 +751,7 @@ def test_points_a_found_objects_fit_leaves_unexplained_are_fitted_as_an_object_o
     found.index = 4  # numbered apart from its candidate
     fits = []
     monkeypatch.setattr(scene_module, "_fit_object", lambda obj, *args: fits.append(obj))
-    new = _fit_leftovers([found], cands, {"ball": SimpleNamespace(decoder=Ball())}, FitOptions(), None, None,
+    new = _fit_leftovers([found], cands, {"ball": SimpleNamespace(decoder=BallDecoder())}, FitOptions(), None, None,
                          workers=1)
     assert [o.index for o in new] == [5] and fits == new  # numbered after the objects given
     leftover = cands.segmentation.candidates[new[0].candidate]

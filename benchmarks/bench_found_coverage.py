@@ -1,14 +1,16 @@
-"""How the coverage a found object needs (``jsrte.fit.scene.COVERED_FOUND``), or the share of it
-the cameras may see through (``SEEN_THROUGH_FOUND_MAX``, with ``--seen-through``), trades objects
-found against false detections, from ``jsrte experiment scenes`` rows.
+"""How the coverage a found object needs (``jsrte.fit.scene.COVERED_FOUND``), the share of it the
+cameras may see through (``SEEN_THROUGH_FOUND_MAX``, with ``--seen-through``), or the share of its
+points its fit must lie on (``FOUND_SHARE``, with ``--inlier``) trades objects found against false
+detections, from ``jsrte experiment scenes`` rows.
 
-``python benchmarks/bench_found_coverage.py OBJECTS.csv [OBJECTS.csv ...] [--bounds 0.15,0.2,0.23] [--seen-through]``
+``python benchmarks/bench_found_coverage.py OBJECTS.csv [...] [--bounds 0.15,0.2,0.23] [--seen-through | --inlier]``
 
 Each CSV is the objects.csv of a scenes experiment (its ``outcome``, ``fscore`` and
-``quality_surface_coverage`` or ``quality_seen_through`` columns). The bound is replayed on the
-recorded fits: a fit whose candidate's points cover less than the bound of its fitted surface
-(or whose surface was seen through on more than it) is no object, so a hit beyond it becomes a
-miss and a false detection beyond it goes. Only bounds no looser than the one the rows were made
+``quality_surface_coverage``, ``quality_seen_through`` or ``quality_inlier_share`` columns). The
+bound is replayed on the recorded fits: a fit whose candidate's points cover less than the bound
+of its fitted surface (whose surface was seen through on more than it; which lies on less than it
+of its points) is no object, so a hit beyond it becomes a miss and a false detection beyond it
+goes. Only bounds no looser than the one the rows were made
 with say anything (fits beyond that one are not in the rows). Printed per bound: the pieces of
 furniture, those found, the false detections, detection recall and precision, and the mean
 F@5% of the found objects (and with the misses counted as 0).
@@ -21,10 +23,19 @@ from pathlib import Path
 
 from replay_bounds import rows_and_bounds
 
-from jsrte.fit.scene import COVERED_FOUND, SEEN_THROUGH_FOUND_MAX
+from jsrte.fit.scene import COVERED_FOUND, FOUND_SHARE, SEEN_THROUGH_FOUND_MAX
 
 DEFAULT_BOUNDS = (0.15, 0.17, 0.19, 0.21, 0.22, 0.23, 0.24, 0.25, 0.28, 0.3)
 SEEN_THROUGH_BOUNDS = (0.13, 0.15, 0.2, 0.25, 0.28, 0.3, 0.32, 0.35, 0.4)
+INLIER_BOUNDS = (0.2, 0.4, 0.5, 0.55, 0.6, 0.62, 0.64, 0.66, 0.7)
+
+SWITCHES = (("--seen-through", SEEN_THROUGH_BOUNDS, "replay the seen-through bound, not the coverage one"),
+            ("--inlier", INLIER_BOUNDS, "replay the share of its points a found object's fit lies on"))
+COLUMNS = {None: ("quality_surface_coverage", COVERED_FOUND, True),
+           "--seen-through": ("quality_seen_through", SEEN_THROUGH_FOUND_MAX, False),
+           "--inlier": ("quality_inlier_share", FOUND_SHARE, True)}
+"""Per switch: the objects.csv column replayed, the shipped bound, and whether a value below the
+bound is no object (else above it)."""
 
 
 def read_rows(paths: list[Path], column: str) -> list[dict]:
@@ -61,15 +72,14 @@ def replay(rows: list[dict], bound: float, *, lower: bool = True) -> dict[str, f
 
 
 def main() -> None:
-    paths, bounds, seen_through = rows_and_bounds(__doc__, DEFAULT_BOUNDS, alternative=(
-        "--seen-through", SEEN_THROUGH_BOUNDS, "replay the seen-through bound, not the coverage one"))
-    column = "quality_seen_through" if seen_through else "quality_surface_coverage"
+    paths, bounds, switch = rows_and_bounds(__doc__, DEFAULT_BOUNDS, SWITCHES)
+    column, shipped, lower = COLUMNS[switch]
     rows = read_rows(paths, column)
-    print(f"shipped bound: {SEEN_THROUGH_FOUND_MAX if seen_through else COVERED_FOUND}")
+    print(f"shipped bound: {shipped}")
     print("| bound | furniture | found | false detections | recall | precision | mean F@5% (misses 0) |")
     print("|---|---|---|---|---|---|---|")
     for bound in bounds:
-        r = replay(rows, bound, lower=not seen_through)
+        r = replay(rows, bound, lower=lower)
         print(f"| {bound:g} | {r['furniture']} | {r['found']} | {r['false']} | {r['recall']:.3f} | "
               f"{r['precision']:.3f} | {r['mean_f']:.3f} ({r['mean_f_misses_0']:.3f}) |")
 

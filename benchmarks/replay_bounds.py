@@ -6,21 +6,24 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+Alternative = tuple[str, tuple[float, ...], str]
+"""A switch to another bound: the switch (``--seen-through``), its default bounds and its help."""
+
 
 def rows_and_bounds(doc: str, default_bounds: tuple[float, ...],
-                    alternative: tuple[str, tuple[float, ...], str] | None = None
-                    ) -> tuple[list[Path], list[float], bool]:
-    """The objects.csv paths, the bounds to replay and whether ``alternative``'s switch was given,
-    from the command line of a bench whose module docstring is ``doc``. ``alternative``: a switch,
-    its default bounds (in place of ``default_bounds`` when it is given) and its help."""
+                    alternatives: tuple[Alternative, ...] = ()) -> tuple[list[Path], list[float], str | None]:
+    """The objects.csv paths, the bounds to replay and which of ``alternatives``' switches was
+    given (None: none), from the command line of a bench whose module docstring is ``doc``. A
+    switch's default bounds stand in for ``default_bounds`` when it is given; at most one may be."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("objects", nargs="+", type=Path, help="objects.csv of a scenes experiment")
     parser.add_argument("--bounds", help="comma-separated bounds to replay (default: "
                         f"{','.join(map(str, default_bounds))})")
-    if alternative is not None:
-        parser.add_argument(alternative[0], action="store_true", help=alternative[2])
+    switches = parser.add_mutually_exclusive_group()
+    for switch, _, help_text in alternatives:
+        switches.add_argument(switch, action="store_true", help=help_text)
     args = parser.parse_args()
-    switched = alternative is not None and getattr(args, alternative[0].lstrip("-").replace("-", "_"))
-    defaults = alternative[1] if switched else default_bounds
+    given = next((a for a in alternatives if getattr(args, a[0].lstrip("-").replace("-", "_"))), None)
+    defaults = given[1] if given is not None else default_bounds
     bounds = [float(b) for b in args.bounds.split(",")] if args.bounds else list(defaults)
-    return args.objects, bounds, bool(switched)
+    return args.objects, bounds, None if given is None else given[0]

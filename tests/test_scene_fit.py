@@ -140,7 +140,7 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
 
     import trimesh
 
-    from jsrte.fit.scene import EXPLAINED_SHARE
+    from jsrte.fit.scene import EXPLAINED_SHARE, FOUND_SHARE
 
     fitting = importlib.import_module("jsrte.fit")  # the package (jsrte.fit is the function)
     solve = importlib.import_module("jsrte.fit.solve")
@@ -167,7 +167,7 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
     moved, kept = record["objects"]
     assert moved["status"] == "unexplained" and moved["quality"]["inlier_share"] < EXPLAINED_SHARE
     assert "no model explains it" in moved["reason"] and moved["flag"] == "doubtful"
-    assert kept["status"] == "ok" and kept["quality"]["inlier_share"] >= EXPLAINED_SHARE
+    assert kept["status"] == "ok" and kept["quality"]["inlier_share"] >= FOUND_SHARE
     assert record["counts"] == {"fitted": 1, "boxes": 0, "unexplained": 1, "failed": 0,
                                 "skipped": record["counts"]["skipped"]}
     assert (out / moved["folder"] / "fit.json").is_file()  # its files are kept for a look
@@ -480,6 +480,38 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
         assert chosen.status == "ok" and chosen.result.flag == flag
     assert "chair" not in CLASS_COVERED_MIN and 0.4 < CLASS_COVERED_MIN["table"]
     assert fitted(0.4).result.flag == "ok" and fitted(0.4, model="table").result.flag == "doubtful"
+
+
+def test_an_object_whose_fit_lies_on_too_few_of_its_points_is_not_found():
+    """A fitted sphere whose points cover most of it: found where its fit lies on 0.7 of them;
+    under FOUND_SHARE (half of them off its surface) a shape beside its points, no object; under
+    EXPLAINED_SHARE no model explains it. Each reason gives the share."""
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from jsrte.fit.scene import EXPLAINED_SHARE, FOUND_SHARE, SceneObject, _flag_scene_object, _mark_unexplained
+    from jsrte.geometry.sim3 import Sim3
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    placed = Sim3(0.5, np.eye(3), np.array([0.0, 0.5, 0.0]))
+    points = placed.apply(sphere.sample(20_000, seed=2))
+    models = {"chair": SimpleNamespace(meta={"name": "mine"})}
+
+    def fitted(share: float) -> SceneObject:
+        result = SimpleNamespace(quality={"inlier_share": share}, transform=placed, mesh_canonical=sphere, flag="ok")
+        obj = SceneObject(0, 0, points, model="chair", result=result)
+        _flag_scene_object(obj, seed=0)
+        _mark_unexplained(obj, models)
+        return obj
+
+    assert EXPLAINED_SHARE < 0.5 < FOUND_SHARE < 0.7
+    assert fitted(0.7).status == "ok"
+    beside = fitted(0.5)
+    assert beside.status == "unexplained" and beside.unexplained_by == "share"
+    assert "a shape beside its points: the chair fit lies on 50% of its points" in beside.reason
+    empty = fitted(EXPLAINED_SHARE / 2)
+    assert empty.status == "unexplained" and "no model explains it" in empty.reason
 
 
 def test_a_scene_object_is_held_to_a_looser_code_bound_than_a_single_fit():

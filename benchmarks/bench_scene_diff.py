@@ -80,9 +80,13 @@ def print_summaries(before: dict[int, list[dict]], after: dict[int, list[dict]],
     print(f"\nover the {len(rooms)} shared rooms ({', '.join(map(str, rooms))}):")
     for side, runs in (("before", before), ("after ", after)):
         s = summarize([row for room in rooms for row in runs[room]])
-        mean = "-" if s["fscore_mean"] is None else f"{s['fscore_mean']:.3f}"
+        accuracy, mean = (_figure(s[name], digits) for name, digits in (("class_accuracy", 2), ("fscore_mean", 3)))
         print(f"  {side} found {s['hits']} of {s['true_furniture']}, {s['false_positives']} false detections, "
-              f"class accuracy {s['class_accuracy']}, mean F@5% {mean}, {s['seconds_per_scene']} s per scene")
+              f"class accuracy {accuracy}, mean F@5% {mean}, {s['seconds_per_scene']} s per scene")
+
+
+def _figure(value: float | None, digits: int) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
 
 
 def print_paired_change(before: dict[int, list[dict]], after: dict[int, list[dict]], rooms: list[int],

@@ -114,23 +114,26 @@ def test_the_runner_up_is_fitted_only_where_the_best_fit_needs_an_atypical_code(
     assert final["decoder_evaluations"] == {"ball": 100, "pair": 100}
 
 
-@pytest.mark.parametrize("ball_scale", [1.0, 2.0])
-def test_a_fit_outside_its_class_sizes_calls_the_runner_up_and_loses_to_a_fit_within(monkeypatch, ball_scale):
+@pytest.mark.parametrize(("ball_scale", "above"), [(1.0, 1.1), (0.72, 1.1), (1.3, None), (1.3, 1.1), (2.0, None)])
+def test_a_fit_outside_its_class_sizes_calls_the_runner_up_and_loses_to_a_fit_within(monkeypatch, ball_scale,
+                                                                                     above):
     """"ball" leads the screen and its full fit needs a typical code; where that fit's radius
-    lies outside the ball model's sizes (0.9-1.1 m, widened by 1.3: 0.69-1.43 m) "pair" is
-    fitted too and wins, though its final score is higher: a size none of its class's is no
-    evidence for the class."""
+    lies outside the ball model's sizes (0.9-1.1 m, widened by 1.3 below and by ``above`` above:
+    0.69-1.21 m, or 0.69-1.43 m with 1.3 both ways) "pair" is fitted too and wins, though its
+    final score is higher: a size none of its class's is no evidence for the class."""
     query, models = _ball_and_blob()
     models["ball"].meta["sizes_m"] = {"smallest": 0.9, "median": 1.0, "largest": 1.1, "shapes": 10}
     fits = {"ball": _fit(ball_scale, 0.6), "pair": _fit(1.0, 0.8)}
     fitted = _stub_full_fits(monkeypatch, fits)
     screen_record = {"chosen": "ball", "chosen_by": "fit", "scores": {"ball": 0.030, "pair": 0.032},
                      "margin": 0.002, "refitted": []}
-    settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02, final_size_margin=1.3)
+    settings = ScreenSettings(final_code_max=0.9, final_code_weight=0.02, final_size_margin=1.3,
+                              final_size_margin_above=above)
     options = type("Options", (), {"seed": 0})()
     result = fit_contenders({"ball": query, "pair": query}, models, options, screen_record, settings=settings)
     final = result.info["class"]["final"]
-    if ball_scale == 1.0:
+    assert final["size_margin"] == 1.3 and final["size_margin_above"] == above
+    if ball_scale < 1.1 or (ball_scale == 1.3 and above is None):
         assert [n for n, _ in fitted] == ["ball"] and result is fits["ball"] and final["in_sizes"] == {"ball": True}
         return
     assert [n for n, _ in fitted] == ["ball", "pair"] and result is fits["pair"]
@@ -162,6 +165,35 @@ def test_where_both_compared_fits_lie_outside_their_sizes_the_third_class_is_fit
     assert [name for name, _ in fitted] == ["sofa", "table", "bed"] and fitted[2][1] is query
     assert result is fits["bed"] and result.info["class"]["final"]["in_sizes"] == {
         "sofa": False, "table": False, "bed": True}
+
+
+@pytest.mark.parametrize("table_scale", [1.5, 3.0])
+def test_where_every_contending_fit_lies_outside_its_sizes_the_class_whose_sizes_hold_it_is_fitted(monkeypatch,
+                                                                                                   table_scale):
+    """A bed scan whose screen ranks table and sofa within the margin and the bed far behind:
+    the table fits it at 1.5 m, past the table's largest size times 1.1 (1.21 m), and the sofa
+    larger still. The bed, whose sizes (1.3-2.0 m, widened: 1.0-2.2 m) hold 1.5 m, is fitted too,
+    though far behind at the screen, and wins; the chair's sizes hold no such radius. A table fit
+    at 3.0 m, which no class's sizes hold, calls no further fit."""
+    query, _ = _ball_and_blob()
+    sizes = {"table": (0.4, 1.1), "sofa": (0.7, 1.2), "bed": (1.3, 2.0), "chair": (0.4, 0.7)}
+    models = {name: DeepSdfModel(SphereDecoder(), torch.zeros(1, 2),
+                                 {"name": name, "sizes_m": {"smallest": lo, "median": (lo + hi) / 2, "largest": hi,
+                                                            "shapes": 10}})
+              for name, (lo, hi) in sizes.items()}
+    fits = {"table": _fit(table_scale, 0.5), "sofa": _fit(3.5, 0.5), "bed": _fit(1.55, 0.5)}
+    fitted = _stub_full_fits(monkeypatch, fits)
+    screen_record = {"chosen": "table", "chosen_by": "fit", "margin": 0.008, "refitted": [],
+                     "scores": {"table": 0.023, "sofa": 0.031, "bed": 0.068, "chair": 0.085}}
+    settings = ScreenSettings(final_code_max=0.9, final_size_margin=1.3, final_size_margin_above=1.1)
+    options = type("Options", (), {"seed": 0})()
+    result = fit_contenders({"table": query, "sofa": query}, models, options, screen_record, settings=settings)
+    final = result.info["class"]["final"]
+    if table_scale == 3.0:
+        assert [name for name, _ in fitted] == ["table", "sofa"] and result is fits["table"]
+        return
+    assert [name for name, _ in fitted] == ["table", "sofa", "bed"] and fitted[2][1] is query
+    assert result is fits["bed"] and final["in_sizes"] == {"table": False, "sofa": False, "bed": True}
 
 
 @pytest.mark.parametrize("far_code", [None, 1.1])

@@ -70,15 +70,17 @@ def decide(class_scores: dict[str, float], codes: dict[str, float | None],
     return min(eligible, key=scores.__getitem__), scores
 
 
-def within_sizes(model: DeepSdfModel, result: FitResult, margin: float | None) -> bool | None:
+def within_sizes(model: DeepSdfModel, result: FitResult, margin: float | None,
+                 above: float | None = None) -> bool | None:
     """Whether ``result``'s radius (its scale s, metres) lies within ``model``'s class sizes
-    widened by ``margin`` each way; None where either is unknown."""
+    widened by ``margin`` below and ``above`` above (None: ``margin`` both ways); None where the
+    sizes or ``margin`` are unknown."""
     from jsrte.model.sizes import model_sizes
 
     sizes = None if margin is None else model_sizes(model.meta)
     if sizes is None:
         return None
-    lo, hi = sizes.bounds(margin)
+    lo, hi = sizes.bounds(margin, above)
     return bool(lo <= float(result.transform.s) <= hi)
 
 
@@ -90,7 +92,9 @@ def fit_contenders(objects: dict[str, SdfQuery], models: dict[str, DeepSdfModel]
     (ratio above ``final_code_max``) or its size none of its class's (:func:`within_sizes`,
     ``final_size_margin``), fit the others too; where every fit lies outside its sizes, or every
     one needed a code beyond ``final_far_code``, the next contending classes
-    (``final_size_classes``) too, on the best class's object, until one does not. The lowest
+    (``final_size_classes``) too, on the best class's object, until one does not; where every fit
+    still lies outside its sizes, the class of best screen score among the others whose sizes hold
+    the first fit's radius (a bed fitted as a table larger than any table) too. The lowest
     final score among the fits within their sizes (and, after every class first compared needed
     a far code, among those that did not) wins (:func:`decide`).
 
@@ -105,14 +109,16 @@ def fit_contenders(objects: dict[str, SdfQuery], models: dict[str, DeepSdfModel]
         compared.fit(name, query)
         if len(compared.results) == 1 and compared.settles(name):
             break
+    first = next(iter(objects.values()))
     if compared.none_fits():
         compared.all_far = compared.all_beyond_far_code()
-        first = next(iter(objects.values()))
         wider = contending(class_record["scores"], replace(settings, final_classes=settings.final_size_classes))
         for name in [n for n in wider if n not in compared.results and n in models]:
             compared.fit(name, first)
             if not compared.none_fits():
                 break
+    if compared.all_outside_sizes():
+        compared.fit_class_holding(class_record["scores"], first)
     winner, scores = decide(class_record["scores"], {k: t["code"] for k, t in compared.terms.items()}, settings,
                             compared.admissible())
     result = compared.results[winner]
@@ -143,7 +149,8 @@ class _Compared:
         model = self.models[name]
         self.results[name] = fit_recorded(model, query, self.options, progress=self.progress)
         self.terms[name] = final_terms(model, self.results[name], self.objects, self.settings, seed=self.options.seed)
-        self.in_sizes[name] = within_sizes(model, self.results[name], self.settings.final_size_margin)
+        self.in_sizes[name] = within_sizes(model, self.results[name], self.settings.final_size_margin,
+                                           self.settings.final_size_margin_above)
 
     def beyond_far_code(self, name: str) -> bool:
         """Whether ``name``'s fit needed a code beyond ``final_far_code`` (never where it is None)."""
@@ -154,10 +161,34 @@ class _Compared:
         """Whether every fit so far needed a code beyond ``final_far_code``."""
         return all(self.beyond_far_code(name) for name in self.terms)
 
+    def all_outside_sizes(self) -> bool:
+        """Whether every fit so far lies outside its class's sizes."""
+        return all(inside is False for inside in self.in_sizes.values())
+
+    def fit_class_holding(self, class_scores: dict[str, float | None], query: SdfQuery) -> None:
+        """Fit to ``query``, of the classes not compared yet, the one of best screen score (in
+        ``class_scores``) whose sizes hold the first fit's radius; none where no class's do."""
+        radius = float(next(iter(self.results.values())).transform.s)
+        scores = {n: np.inf if v is None else v for n, v in class_scores.items()}
+        holding = [n for n in sorted(scores, key=scores.__getitem__)
+                   if n not in self.results and n in self.models and self.holds(n, radius)]
+        if holding:
+            self.fit(holding[0], query)
+
+    def holds(self, name: str, radius: float) -> bool:
+        """Whether class ``name``'s sizes, widened as the fits' are, hold ``radius`` (m)."""
+        from jsrte.model.sizes import model_sizes
+
+        sizes = None if self.settings.final_size_margin is None else model_sizes(self.models[name].meta)
+        if sizes is None:
+            return False
+        lo, hi = sizes.bounds(self.settings.final_size_margin, self.settings.final_size_margin_above)
+        return lo <= radius <= hi
+
     def none_fits(self) -> bool:
         """Whether every fit so far lies outside its class's sizes, or every one needed a code
         beyond ``final_far_code``: no compared class is the object's."""
-        return all(inside is False for inside in self.in_sizes.values()) or self.all_beyond_far_code()
+        return self.all_outside_sizes() or self.all_beyond_far_code()
 
     def admissible(self) -> dict[str, bool | None]:
         """Class -> whether its fit may be the object's class (:func:`decide`): not where it lies
@@ -177,6 +208,7 @@ class _Compared:
         return {"compared": list(self.results), "code_max": self.settings.final_code_max,
                 "far_code": self.settings.final_far_code, "first_all_far": self.all_far,
                 "code_weight": self.settings.final_code_weight, "size_margin": self.settings.final_size_margin,
+                "size_margin_above": self.settings.final_size_margin_above,
                 "in_sizes": self.in_sizes, "scores": {k: round(v, 5) for k, v in scores.items()},
                 "margin": round(ranked[1] - ranked[0], 5) if len(ranked) > 1 else None,
                 "terms": {k: {n: None if v is None else round(v, 5) for n, v in t.items()}

@@ -123,10 +123,17 @@ class ScreenSettings:
     plus this times the ratio)."""
     final_size_margin: float | None = 1.3
     """A full fit whose radius lies outside its class's sizes (``jsrte.model.sizes``: its
-    training shapes') widened by this each way is no evidence for the class (a sofa model
-    stretched over a bed): the next contending class is fitted in full too, and a class whose
-    fit lies within its sizes wins over one whose fit does not. None: sizes are not weighed (nor
-    where a model records none)."""
+    training shapes') widened by this below (and by ``final_size_margin_above`` above) is no
+    evidence for the class (a sofa model stretched over a bed): the next contending class is
+    fitted in full too, and a class whose fit lies within its sizes wins over one whose fit does
+    not. None: sizes are not weighed (nor where a model records none)."""
+    final_size_margin_above: float | None = 1.1
+    """The widening of the largest size (None: ``final_size_margin``). A fit ends smaller than
+    its object more often than larger (a partial view, a piece of it chosen), while a model of a
+    smaller class stretched over a bigger object overshoots its own class: on the tuning scans
+    (clean, indices 100-119 at their own sizes) every fit chosen with the right class lay at 0.97
+    or less of its class's largest training size, and four beds went to tables fitted at 1.22-1.30
+    times the largest training table (1.32 m), inside a margin of 1.3."""
     final_size_classes: int = 3
     """Where every class fitted in full lies outside its sizes (or needed a code beyond
     ``final_far_code``), the next contending classes (up to this many in all, each within

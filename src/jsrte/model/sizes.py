@@ -34,9 +34,10 @@ class ClassSizes:
     largest: float
     shapes: int
 
-    def bounds(self, margin: float) -> tuple[float, float]:
-        """The scales (m) a fit may take: from ``smallest / margin`` to ``largest * margin``."""
-        return self.smallest / margin, self.largest * margin
+    def bounds(self, margin: float, above: float | None = None) -> tuple[float, float]:
+        """The scales (m) a fit may take: from ``smallest / margin`` to ``largest * above``
+        (``above`` None: ``margin`` both ways)."""
+        return self.smallest / margin, self.largest * (margin if above is None else above)
 
 
 def measure_sizes(meshes: Iterable[trimesh.Trimesh]) -> ClassSizes:

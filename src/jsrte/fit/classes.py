@@ -75,13 +75,20 @@ def within_sizes(model: DeepSdfModel, result: FitResult, margin: float | None,
     """Whether ``result``'s radius (its scale s, metres) lies within ``model``'s class sizes
     widened by ``margin`` below and ``above`` above (None: ``margin`` both ways); None where the
     sizes or ``margin`` are unknown."""
+    return radius_within_sizes(model, float(result.transform.s), margin, above)
+
+
+def radius_within_sizes(model: DeepSdfModel, radius: float, margin: float | None,
+                        above: float | None = None) -> bool | None:
+    """Whether ``radius`` (metres) lies within ``model``'s class sizes widened as in
+    :func:`within_sizes`; None where the sizes or ``margin`` are unknown."""
     from jsrte.model.sizes import model_sizes
 
     sizes = None if margin is None else model_sizes(model.meta)
     if sizes is None:
         return None
     lo, hi = sizes.bounds(margin, above)
-    return bool(lo <= float(result.transform.s) <= hi)
+    return bool(lo <= radius <= hi)
 
 
 def fit_contenders(objects: dict[str, SdfQuery], models: dict[str, DeepSdfModel], options: object,
@@ -170,20 +177,11 @@ class _Compared:
         ``class_scores``) whose sizes hold the first fit's radius; none where no class's do."""
         radius = float(next(iter(self.results.values())).transform.s)
         scores = {n: np.inf if v is None else v for n, v in class_scores.items()}
-        holding = [n for n in sorted(scores, key=scores.__getitem__)
-                   if n not in self.results and n in self.models and self.holds(n, radius)]
+        margins = (self.settings.final_size_margin, self.settings.final_size_margin_above)
+        holding = [n for n in sorted(scores, key=scores.__getitem__) if n not in self.results and n in self.models
+                   and radius_within_sizes(self.models[n], radius, *margins)]
         if holding:
             self.fit(holding[0], query)
-
-    def holds(self, name: str, radius: float) -> bool:
-        """Whether class ``name``'s sizes, widened as the fits' are, hold ``radius`` (m)."""
-        from jsrte.model.sizes import model_sizes
-
-        sizes = None if self.settings.final_size_margin is None else model_sizes(self.models[name].meta)
-        if sizes is None:
-            return False
-        lo, hi = sizes.bounds(self.settings.final_size_margin, self.settings.final_size_margin_above)
-        return lo <= radius <= hi
 
     def none_fits(self) -> bool:
         """Whether every fit so far lies outside its class's sizes, or every one needed a code

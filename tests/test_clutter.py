@@ -578,6 +578,35 @@ def test_cameras_walked_nearly_along_a_line_still_give_the_up_axis():
     assert camera_plane_normal(on_a_line) is None  # no plane to speak of: a line with noise around it
 
 
+@pytest.mark.parametrize(("gap", "join_apart", "joined"), [(0.25, 0.4, True), (0.25, None, False), (0.6, 0.4, False)])
+def test_without_a_class_two_pieces_apart_stay_candidates_beside_their_join(gap, join_apart, joined):
+    """A bed's head (a headboard 0.8 m tall) and its foot (the mattress, 1 m long) seen
+    ``gap`` apart, its middle unseen: two clusters beyond the join's 10 cm. Within
+    ``join_apart_m`` a scene's segmentation joins them, both staying candidates as the join's
+    parts; without it, or farther apart, they are two candidates and nothing holds both."""
+    from jsrte.fit.scene import SCENE_SEGMENT
+
+    move = trimesh.transformations.translation_matrix
+    head = trimesh.creation.box([1.1, 0.8, 0.1], transform=move([0, 0.4, 0.0]))
+    foot = trimesh.creation.box([1.1, 0.45, 1.0], transform=move([0, 0.225, 0.05 + gap + 0.5]))
+    clouds = [_surface_points(mesh, int(4000 * mesh.area), k) for k, mesh in enumerate([head, foot])]
+    points = np.concatenate(clouds)
+    is_head = np.arange(len(points)) < len(clouds[0])
+    settings = replace(SCENE_SEGMENT, join_apart_m=join_apart)
+    result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0),
+                             settings=settings)
+    both = [c for c in result.candidates if len(c.index) > 0.98 * len(points)]
+    assert bool(both) == joined
+    heads = [k for k, c in enumerate(result.candidates)
+             if is_head[c.index].mean() > 0.99 and len(c.index) > 0.98 * len(clouds[0])]
+    feet = [k for k, c in enumerate(result.candidates)
+            if is_head[c.index].mean() < 0.01 and len(c.index) > 0.98 * len(clouds[1])]
+    assert len(heads) == 1 and len(feet) == 1
+    if joined:
+        assert both[0].summary["joined"] and both[0].parent is None
+        assert sorted(both[0].parts) == sorted(heads + feet)
+
+
 @pytest.mark.parametrize("keeps_parts", [True, False])
 def test_without_a_class_two_tables_side_by_side_stay_candidates_of_their_own(keeps_parts):
     """Two tables 6 cm apart along their long sides, the second's top seen 8 cm apart from its

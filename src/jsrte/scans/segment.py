@@ -143,6 +143,11 @@ class SegmentSettings:
     join_keeps_parts: bool = True
     """Two big clusters merged on class evidence stay candidates as the merge's parts (the
     screen judges the merge against them); False: the merge alone is a candidate."""
+    join_apart_m: float | None = None
+    """Without a class and with ``join_keeps_parts_without_class``, two clusters farther apart than
+    ``join_m`` but within this, each of which could be an object and neither lying over the
+    other, are joined after the other joins, both staying candidates as the join's parts: the
+    head and the foot of a bed whose middle the scan did not see. None: no such join."""
     join_keeps_parts_without_class: bool = False
     """Without a class (whole scenes, where every two big clusters closer than ``join_m`` merge),
     the two stay candidates as the merge's parts too: two tables 3-7 cm apart, or a chair beside
@@ -290,6 +295,8 @@ def segment_objects(
     clusters = [kept[labels == k] for k in range(labels.max(initial=-1) + 1)]
     clusters = _join(clusters, points, heights, shape, settings)
     clusters = _join_supported(clusters, points, heights, up, settings)
+    if shape is None and settings.join_keeps_parts_without_class and settings.join_apart_m:
+        clusters = _join_apart(clusters, points, heights, settings)
     sight = None
     if settings.peel_boxes and viewpoints is not None and len(viewpoints):
         sight = Sight(points if seen is None else np.asarray(seen, float), np.asarray(viewpoints, float))
@@ -881,6 +888,27 @@ def _join_supported(clusters: list[_Cluster], points: np.ndarray, heights: np.nd
                 alive[j] = False
         clusters[i] = top
     return [c for c, keep in zip(clusters, alive, strict=True) if keep]
+
+
+def _join_apart(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarray, s: SegmentSettings
+                ) -> list[_Cluster]:
+    """Join, closest first, two ``clusters`` farther apart than ``join_m`` but within
+    ``join_apart_m`` where their join is not too big to be an object and each could be one,
+    neither lying over the other (:func:`_kept_apart`): the two stay the join's members."""
+    clusters = list(clusters)
+    while True:
+        pairs = sorted((gap, i, j) for i in range(len(clusters)) for j in range(i + 1, len(clusters))
+                       if s.join_m < (gap := _gap(points[clusters[i].index], points[clusters[j].index],
+                                                  s.join_apart_m)) <= s.join_apart_m)
+        for _, i, j in pairs:
+            bigger, smaller = sorted((clusters[i], clusters[j]), key=lambda c: -len(c.index))
+            union = np.concatenate([bigger.index, smaller.index])
+            if not _too_big(points[union], heights[union], s) and _kept_apart(smaller.index, bigger, points,
+                                                                                heights, s):
+                clusters = [c for k, c in enumerate(clusters) if k not in (i, j)] + [_Cluster(union, [bigger, smaller])]
+                break
+        else:
+            return clusters
 
 
 def _attach_small(big: list[np.ndarray], small: list[np.ndarray], points: np.ndarray, join_m: float

@@ -896,10 +896,12 @@ def _join_apart(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarra
     ``join_apart_m`` where their join is not too big to be an object and each could be one,
     neither lying over the other (:func:`_kept_apart`): the two stay the join's members."""
     clusters = list(clusters)
+    refused: set[tuple[int, int]] = set()  # pairs (by identity) already judged apart
     while True:
         pairs = sorted((gap, i, j) for i in range(len(clusters)) for j in range(i + 1, len(clusters))
-                       if s.join_m < (gap := _gap(points[clusters[i].index], points[clusters[j].index],
-                                                  s.join_apart_m)) <= s.join_apart_m)
+                       if (id(clusters[i]), id(clusters[j])) not in refused
+                       and s.join_m < (gap := _gap(points[clusters[i].index], points[clusters[j].index],
+                                                   s.join_apart_m)) <= s.join_apart_m)
         for _, i, j in pairs:
             bigger, smaller = sorted((clusters[i], clusters[j]), key=lambda c: -len(c.index))
             union = np.concatenate([bigger.index, smaller.index])
@@ -907,6 +909,7 @@ def _join_apart(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarra
                                                                                 heights, s):
                 clusters = [c for k, c in enumerate(clusters) if k not in (i, j)] + [_Cluster(union, [bigger, smaller])]
                 break
+            refused.add((id(clusters[i]), id(clusters[j])))
         else:
             return clusters
 

@@ -1,7 +1,7 @@
 """How many objects of a room the scene's segmentation gives a candidate of their own, before any fit.
 
 ``python benchmarks/bench_segmentation.py ROOMS_DIR [--rooms 20 --first 0 --seed 0] [--jobs 2]
-[--settings cut_max_without_class=0.012,split_depth=3]``
+[--settings cut_max_without_class=0.012,split_depth=3,join_apart_m=none]``
 
 ``ROOMS_DIR`` holds one folder per room (``000``, ``001``, ...: ``scan.ply``, ``scene.json``,
 ``labels.npy``), as ``jsrte experiment scenes --out DIR`` leaves in ``DIR/rooms``; a room missing
@@ -152,12 +152,12 @@ def _outcome(index: int, total: int, held: list[dict[int, int]], share: float, p
     return "own" if mine >= purity * sum(best.values()) else "impure"
 
 
-def _settings(text: str) -> dict[str, float | int]:
-    """``name=value,...`` as SegmentSettings changes (numbers)."""
-    changes = {}
+def _settings(text: str) -> dict[str, float | int | None]:
+    """``name=value,...`` as SegmentSettings changes (numbers, or ``none`` for None: off)."""
+    changes: dict[str, float | int | None] = {}
     for item in filter(None, text.split(",")):
-        name, value = item.split("=")
-        changes[name.strip()] = float(value) if "." in value else int(value)
+        name, value = (part.strip() for part in item.split("="))
+        changes[name] = None if value.lower() == "none" else float(value) if "." in value else int(value)
     return changes
 
 

@@ -578,16 +578,19 @@ def test_cameras_walked_nearly_along_a_line_still_give_the_up_axis():
     assert camera_plane_normal(on_a_line) is None  # no plane to speak of: a line with noise around it
 
 
-@pytest.mark.parametrize(("gap", "join_apart", "joined"), [(0.25, 0.4, True), (0.25, None, False), (0.6, 0.4, False)])
-def test_without_a_class_two_pieces_apart_stay_candidates_beside_their_join(gap, join_apart, joined):
-    """A bed's head (a headboard 0.8 m tall) and its foot (the mattress, 1 m long) seen
-    ``gap`` apart, its middle unseen: two clusters beyond the join's 10 cm. Within
-    ``join_apart_m`` a scene's segmentation joins them, both staying candidates as the join's
-    parts; without it, or farther apart, they are two candidates and nothing holds both."""
+@pytest.mark.parametrize(("gap", "join_apart", "head_depth", "joined"),
+                         [(0.25, 0.4, 0.1, True), (0.25, None, 0.1, False), (0.6, 0.4, 0.1, False),
+                          (0.25, 0.4, 0.01, False)])
+def test_without_a_class_two_pieces_apart_stay_candidates_beside_their_join(gap, join_apart, head_depth, joined):
+    """A bed's head (a headboard 0.8 m tall, ``head_depth`` deep) and its foot (the mattress,
+    1 m long) seen ``gap`` apart, its middle unseen: two clusters beyond the join's 10 cm.
+    Within ``join_apart_m`` a scene's segmentation joins them, both staying candidates as the
+    join's parts; without it, or farther apart, they are two candidates and nothing holds both,
+    and so is a head 1 cm deep: a wall's piece (a remnant of a wall is no object's part)."""
     from jsrte.fit.scene import SCENE_SEGMENT
 
     move = trimesh.transformations.translation_matrix
-    head = trimesh.creation.box([1.1, 0.8, 0.1], transform=move([0, 0.4, 0.0]))
+    head = trimesh.creation.box([1.1, 0.8, head_depth], transform=move([0, 0.4, 0.05 - head_depth / 2]))
     foot = trimesh.creation.box([1.1, 0.45, 1.0], transform=move([0, 0.225, 0.05 + gap + 0.5]))
     clouds = [_surface_points(mesh, int(4000 * mesh.area), k) for k, mesh in enumerate([head, foot])]
     points = np.concatenate(clouds)

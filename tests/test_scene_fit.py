@@ -926,3 +926,49 @@ def test_a_table_whose_top_was_not_seen_and_no_other_class_explains_is_searched_
     escape = table_fitted_too_high()
     assert _check_objects([escape], models, FitOptions(preset=ESCAPE_PRESET), 1, SCENE_SCREEN) == []
     assert len(searched_with) == 3 and escape.status == "unexplained"
+
+
+def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeypatch):
+    """A whole (candidate 0: parts 1, 2 and a rejected scrap 3) judged one object, whose fit the
+    cameras saw through, gives way to its parts: 1 is fitted and found; 2 is seen through in
+    turn and gives way to its own parts 4 and 5; the scrap is not fitted. Each new object is
+    numbered after the others and says whose part it is. A whole dropped as a second fit, or
+    whose points cover little of its fit, keeps its parts out."""
+    from types import SimpleNamespace
+
+    from jsrte.fit import scene as scene_module
+    from jsrte.fit.scene import SEEN_THROUGH_FOUND_MAX, SceneObject, _fit_parts_of_dropped
+    from jsrte.options import FitOptions
+
+    candidates = [_Candidate(60, parts=[1, 2, 3]), _Candidate(20, parent=0), _Candidate(30, parts=[4, 5], parent=0),
+                  _Candidate(3, parent=0), _Candidate(15, parent=2), _Candidate(15, parent=2)]
+    candidates[3].rejected = "too small: 3 points"
+    points = np.zeros((60, 3))
+    cands = SimpleNamespace(segmentation=SimpleNamespace(candidates=candidates),
+                            segmented=SimpleNamespace(cloud=SimpleNamespace(points=points), index=np.arange(60)))
+    seen_through = {1: 0.0, 2: 0.6, 4: 0.05, 5: 0.1}
+    fitted = []
+
+    def fit_object(obj, *args):
+        fitted.append(obj.candidate)
+        obj.model, obj.result = "m", SimpleNamespace(quality={"seen_through": seen_through[obj.candidate]})
+
+    monkeypatch.setattr(scene_module, "_fit_object", fit_object)
+    monkeypatch.setattr(scene_module, "_check_objects", lambda objects, *args: [])
+    monkeypatch.setattr(scene_module, "_drop_second_fits", lambda *args, **kwargs: None)
+
+    def whole(dropped_by: str) -> SceneObject:
+        obj = SceneObject(7, 0, points, model="m", status="unexplained", unexplained_by=dropped_by)
+        obj.result = SimpleNamespace(quality={"seen_through": 0.5 if dropped_by == "seen through" else 0.0})
+        return obj
+
+    options = FitOptions()
+    parts = _fit_parts_of_dropped([whole("seen through")], cands, {}, {}, {}, options, None, workers=1)
+    assert fitted == [1, 2, 4, 5] and [o.candidate for o in parts] == [1, 2, 4, 5]
+    assert [o.index for o in parts] == [8, 9, 10, 11] and [o.part_of for o in parts] == [7, 7, 9, 9]
+    assert [o.status for o in parts] == ["ok", "unexplained", "ok", "ok"] and seen_through[2] > SEEN_THROUGH_FOUND_MAX
+    assert replace(parts[0], result=None).to_json()["part_of"] == 7
+    fitted.clear()
+    for dropped_by in ("second fit", "coverage"):
+        assert _fit_parts_of_dropped([whole(dropped_by)], cands, {}, {}, {}, options, None, workers=1) == []
+    assert fitted == []

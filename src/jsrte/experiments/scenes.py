@@ -205,7 +205,8 @@ def _found_columns(obj: object) -> dict:
     margin = None if obj.class_choice is None else obj.class_choice.get("margin")
     quality = {f"quality_{k}": v for k, v in r.quality.items() if isinstance(v, (int, float)) or v is None}
     return {"points": len(obj.points), "class_margin": margin, "fit_seconds": r.timing.get("total"),
-            "scale_m": float(r.transform.s), "leftover_of": obj.leftover_of} | quality
+            "scale_m": float(r.transform.s), "leftover_of": obj.leftover_of,
+            "part_of": obj.part_of} | quality
 
 
 def _truth_columns(result: object, true: object, rng: np.random.Generator) -> dict:

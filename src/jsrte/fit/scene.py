@@ -84,6 +84,8 @@ class SceneObject:
     box : the evidence that it is a box, its cuboid in it (None: not a box)
     leftover_of : the found object whose fit left its points unexplained (:func:`_fit_leftovers`;
         None: a candidate of the segmentation)
+    part_of : the object, a whole of which this is a part, whose fit a check of
+        :data:`PARTS_AFTER` dropped (:func:`_fit_parts_of_dropped`; None: judged an object itself)
     views : the scan's readings by camera, to find where the cameras saw through its fit (None:
         the scan does not say which camera saw each point)
     """
@@ -100,6 +102,7 @@ class SceneObject:
     unexplained_by: str = ""
     box: BoxEvidence | None = field(default=None, repr=False)
     leftover_of: int | None = None
+    part_of: int | None = None
     views: CameraViews | None = field(default=None, repr=False)
 
     @property
@@ -122,6 +125,8 @@ class SceneObject:
             entry["reason"] = self.reason
         if self.leftover_of is not None:
             entry["leftover_of"] = self.leftover_of
+        if self.part_of is not None:
+            entry["part_of"] = self.part_of
         r = self.result
         if r is not None:
             mesh = r.mesh
@@ -193,7 +198,8 @@ class SceneResult:
                 "timing_s": self.timing}
 
 
-SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True)
+SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True,
+                                join_apart_m=0.4)
 """The segmentation of a scene whose class is unknown: without a class shape to say where to cut,
 every neck of normalized cut 0.008 or less is cut (the whole staying a candidate beside its
 parts), and fits of the whole and of its parts decide (:func:`judge_splits`). On the tuning
@@ -202,7 +208,11 @@ less; cuts within one object ran from 0.0007 to 0.02. Cuts along three eigenvect
 (``cut_vectors=3``) give more objects a candidate of their own but were not better once fitted
 (docs/clutter.md, Limits). Two clusters within joining reach that could each be an object (two
 tables side by side, a chair beside a bed) stay the parts of their join
-(``join_keeps_parts_without_class``), judged as a split's."""
+(``join_keeps_parts_without_class``), judged as a split's; so do two up to 40 cm apart
+(``join_apart_m``): a bed whose middle the scan did not see. On the tuning rooms such a join
+gave 3 more of 282 pieces of furniture a candidate of their own (beds), and most joins that far
+hold two objects: a whole judged one object whose fit is dropped gives way to its parts
+(:func:`_fit_parts_of_dropped`)."""
 
 
 SCENE_FIT_VEIL: VeilSettings | None = None
@@ -475,6 +485,8 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         _drop_second_fits([o for o in objects if not any(o is f for f in searched)], models, options.seed)
         _drop_second_fits(objects, models, options.seed, newcomers=searched)
         _drop_seen_through(objects)
+        objects += _fit_parts_of_dropped(objects, cands, screened, found_boxes, models, options, screen, workers,
+                                         views)
     if leftovers:
         with _timed(timing, "leftovers"):
             extra = _fit_leftovers(objects, cands, models, options, screen, boxes, workers, views)
@@ -865,6 +877,46 @@ def _fit_leftovers(objects: list[SceneObject], cands: object, models: dict, opti
     _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), to_fit, workers)
     _check_objects(extra, models, options, workers, screen)
     return extra
+
+
+PARTS_AFTER = ("seen through", "size", "share")
+"""The checks (``SceneObject.unexplained_by``) after which a whole judged one object gives way to
+its parts (:func:`_fit_parts_of_dropped`): no object of its class stands where its fit lies, or
+none of its class's sizes, or its fit lies on few of its points, so it may be two objects, a bed
+and the chair beside it fitted as one bed."""
+
+
+def _fit_parts_of_dropped(objects: list[SceneObject], cands: object, screened: dict[int, Choice | str],
+                          boxes: dict[int, BoxEvidence], models: dict, options: FitOptions, screen: ScreenSettings,
+                          workers: int, views: CameraViews | None = None) -> list[SceneObject]:
+    """The parts of every whole among ``objects`` that a check of :data:`PARTS_AFTER` left
+    unexplained, fitted and checked as objects of their own (their quick fits from ``screened``,
+    a box where ``boxes`` holds one), each ``part_of`` that whole; a part of those dropped so in
+    turn gives way to its own parts. New objects are numbered after ``objects``; a part's fit
+    that is a second fit of an object found before goes."""
+    seg, segmented = cands.segmentation, cands.segmented
+    cloud_points = np.asarray(segmented.cloud.points, float)
+    taken = {o.candidate for o in objects} | {k for k, c in enumerate(seg.candidates) if c.rejected}
+    added: list[SceneObject] = []
+    dropped = [o for o in objects if o.unexplained_by in PARTS_AFTER]
+    while dropped:
+        first = max(o.index for o in objects + added) + 1
+        parts = [(k, whole.index) for whole in dropped for k in seg.candidates[whole.candidate].parts
+                 if k not in taken]
+        new = [SceneObject(first + i, k, cloud_points[segmented.index[seg.candidates[k].index]],
+                           choice=screened.get(k), box=boxes.get(k), status=BOX_CLASS if k in boxes else "ok",
+                           part_of=whole, views=views)
+               for i, (k, whole) in enumerate(parts)]
+        taken.update(k for k, _ in parts)
+        _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen),
+                    [o for o in new if o.box is None], workers)
+        searched = _check_objects(new, models, options, workers, screen)
+        _drop_second_fits(objects + added + new, models, options.seed, newcomers=new)
+        _drop_second_fits(new, models, options.seed, newcomers=searched)
+        _drop_seen_through(new)
+        added += new
+        dropped = [o for o in new if o.unexplained_by in PARTS_AFTER]
+    return added
 
 
 def _add_leftover_candidates(objects: list[SceneObject], cands: object, models: dict) -> dict[int, int]:

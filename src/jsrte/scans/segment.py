@@ -296,7 +296,7 @@ def segment_objects(
     clusters = _join(clusters, points, heights, shape, settings)
     clusters = _join_supported(clusters, points, heights, up, settings)
     if shape is None and settings.join_keeps_parts_without_class and settings.join_apart_m:
-        clusters = _join_apart(clusters, points, heights, settings)
+        clusters = _join_apart(clusters, points, heights, up, settings)
     sight = None
     if settings.peel_boxes and viewpoints is not None and len(viewpoints):
         sight = Sight(points if seen is None else np.asarray(seen, float), np.asarray(viewpoints, float))
@@ -890,16 +890,19 @@ def _join_supported(clusters: list[_Cluster], points: np.ndarray, heights: np.nd
     return [c for c, keep in zip(clusters, alive, strict=True) if keep]
 
 
-def _join_apart(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarray, s: SegmentSettings
-                ) -> list[_Cluster]:
+def _join_apart(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                s: SegmentSettings) -> list[_Cluster]:
     """Join, closest first, two ``clusters`` farther apart than ``join_m`` but within
     ``join_apart_m`` where their join is not too big to be an object and each could be one,
-    neither lying over the other (:func:`_kept_apart`): the two stay the join's members."""
+    neither lying over the other (:func:`_kept_apart`) and neither a wall's piece (a vertical
+    slab thinner than ``min_depth_m``, rejected on its own): the two stay the join's members."""
     clusters = list(clusters)
+    walls = {id(c) for c in clusters if _vertical_depth(points[c.index], up) < s.min_depth_m}
     refused: set[tuple[int, int]] = set()  # pairs (by identity) already judged apart
     while True:
         pairs = sorted((gap, i, j) for i in range(len(clusters)) for j in range(i + 1, len(clusters))
                        if (id(clusters[i]), id(clusters[j])) not in refused
+                       and not {id(clusters[i]), id(clusters[j])} & walls
                        and s.join_m < (gap := _gap(points[clusters[i].index], points[clusters[j].index],
                                                    s.join_apart_m)) <= s.join_apart_m)
         for _, i, j in pairs:

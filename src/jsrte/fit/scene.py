@@ -198,8 +198,7 @@ class SceneResult:
                 "timing_s": self.timing}
 
 
-SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True,
-                                join_apart_m=0.4)
+SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True)
 """The segmentation of a scene whose class is unknown: without a class shape to say where to cut,
 every neck of normalized cut 0.008 or less is cut (the whole staying a candidate beside its
 parts), and fits of the whole and of its parts decide (:func:`judge_splits`). On the tuning
@@ -208,11 +207,8 @@ less; cuts within one object ran from 0.0007 to 0.02. Cuts along three eigenvect
 (``cut_vectors=3``) give more objects a candidate of their own but were not better once fitted
 (docs/clutter.md, Limits). Two clusters within joining reach that could each be an object (two
 tables side by side, a chair beside a bed) stay the parts of their join
-(``join_keeps_parts_without_class``), judged as a split's; so do two up to 40 cm apart
-(``join_apart_m``): a bed whose middle the scan did not see. On the tuning rooms such a join
-gave 3 more of 282 pieces of furniture a candidate of their own (beds), and most joins that far
-hold two objects: a whole judged one object whose fit is dropped gives way to its parts
-(:func:`_fit_parts_of_dropped`)."""
+(``join_keeps_parts_without_class``), judged as a split's. Joining two up to 40 cm apart as well
+(``join_apart_m``: a bed whose middle the scan did not see) stays off (docs/clutter.md, Limits)."""
 
 
 SCENE_FIT_VEIL: VeilSettings | None = None

@@ -503,7 +503,8 @@ PHASES = ("segmentation", "quick fits", "full fits", "checks", "leftovers")
 """The phases of :func:`fit_scene` whose wall seconds ``SceneResult.timing`` (scene.json's
 ``timing_s``) records: models loaded and the scan segmented; every candidate fitted quickly by
 every model and the splits judged; the full fits (contending classes and refits included); the
-coverage, size and second-fit checks with the other-class fits they call for; the leftovers'
+coverage, size and second-fit checks with the other-class fits they call for and the fits of
+the parts of dropped wholes (:func:`_fit_parts_of_dropped`); the leftovers'
 clustering, quick fits, full fits and checks (:func:`_fit_leftovers`)."""
 
 

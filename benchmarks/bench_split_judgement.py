@@ -67,8 +67,9 @@ def main() -> None:
 def _record_room(room_dir: Path, room: int, seed: int, cache: Path) -> tuple[int, float]:
     """Segment room ``room`` as a scene does, fit every candidate of a split quickly by every
     model, and write the record (``cache/NNN.json``): truth, candidates (points, parent, parts,
-    rejection, labels held, screen scores), boxes and, per whole and part below it, the mean
-    distances (m) of the whole's and the part's own best fit from the part's points."""
+    rejection, whether a join of clusters apart, labels held, screen scores), boxes and, per
+    whole and part below it, the mean distances (m) of the whole's and the part's own best fit
+    from the part's points."""
     import numpy as np
     import torch
 
@@ -116,7 +117,8 @@ def _record_room(room_dir: Path, room: int, seed: int, cache: Path) -> tuple[int
         values, counts = np.unique(labels[cands.segmented.index[c.index]], return_counts=True)
         record["candidates"][str(k)] = {
             "points": len(c.index), "parent": c.parent, "parts": list(c.parts), "rejected": c.rejected,
-            "possible": k in possible, "labels": {str(v): int(n) for v, n in zip(values, counts, strict=True)},
+            "possible": k in possible, "joined_apart": bool(c.summary.get("joined_apart", False)),
+            "labels": {str(v): int(n) for v, n in zip(values, counts, strict=True)},
             "scores": None if k not in fitted else {s.model: float(s.score) for s in screened[k].screened}}
     for k in fitted:
         for part in (p for p in below(k) if p in fitted):
@@ -135,7 +137,8 @@ def _judged(record: dict, floor: float) -> tuple[list[int], list[int]]:
     settings = replace(SCENE_SCREEN, explained_floor=floor)
     entries = {int(k): v for k, v in record["candidates"].items()}
     candidates = [SimpleNamespace(index=range(e["points"]), parent=e["parent"], parts=e["parts"],
-                                  rejected=e["rejected"]) for _, e in sorted(entries.items())]
+                                  rejected=e["rejected"], summary={"joined_apart": e.get("joined_apart", False)})
+                  for _, e in sorted(entries.items())]
     screened = {k: Choice(None, None, [Screened(m, k, None, None, s, {}) for m, s in e["scores"].items()],
                           e["scores"]) for k, e in entries.items() if e["scores"]}
     distances = {tuple(int(v) for v in key.split(",")): d for key, d in record["distances"].items()}

@@ -610,6 +610,35 @@ def test_without_a_class_two_pieces_apart_stay_candidates_beside_their_join(gap,
         assert sorted(both[0].parts) == sorted(heads + feet)
 
 
+@pytest.mark.parametrize("floor_seen", [True, False])
+def test_a_box_apart_from_a_piece_of_furniture_is_not_joined_to_it(floor_seen):
+    """A box (40 cm a side) 25 cm from a bed's foot (the mattress): within the far join's reach,
+    but the floor seen all around it and nowhere under it tells a box, no object's part: the two
+    stay candidates and nothing holds both. Without the floor seen, nothing tells a box and the
+    two are joined."""
+    from jsrte.fit.scene import SCENE_SEGMENT
+
+    move = trimesh.transformations.translation_matrix
+    foot = trimesh.creation.box([1.1, 0.45, 1.0], transform=move([0, 0.225, 0.5]))
+    side_box = box((0.4, 0.4, 0.4))
+    side_box.apply_translation([0.0, 0.0, -0.45])
+    clouds = [_surface_points(mesh, int(4000 * mesh.area), k) for k, mesh in enumerate([foot, side_box])]
+    clouds = [c[c[:, 1] > 0.005] for c in clouds]  # nobody sees the bottom faces
+    points = np.concatenate(clouds)
+    grid = np.stack(np.meshgrid(np.arange(-1.5, 1.5, 0.02), np.arange(-1.5, 2.0, 0.02)), -1).reshape(-1, 2)
+    under = ((np.abs(grid[:, 0]) < 0.55) & (grid[:, 1] > 0.0) & (grid[:, 1] < 1.0)
+             | (np.abs(grid[:, 0]) < 0.2) & (np.abs(grid[:, 1] + 0.45) < 0.2))
+    floor = np.column_stack([grid[~under, 0], np.zeros((~under).sum()), grid[~under, 1]])
+    result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0),
+                             seen=np.concatenate([points, floor]) if floor_seen else None,
+                             settings=SCENE_SEGMENT)
+    assert SCENE_SEGMENT.join_apart_m is not None and SCENE_SEGMENT.join_apart_m > 0.25
+    both = [c for c in result.candidates if len(c.index) > 0.95 * len(points)]
+    assert bool(both) != floor_seen
+    is_box = np.arange(len(points)) >= len(clouds[0])
+    assert any(is_box[c.index].mean() > 0.99 and len(c.index) > 0.95 * len(clouds[1]) for c in result.candidates)
+
+
 @pytest.mark.parametrize("keeps_parts", [True, False])
 def test_without_a_class_two_tables_side_by_side_stay_candidates_of_their_own(keeps_parts):
     """Two tables 6 cm apart along their long sides, the second's top seen 8 cm apart from its

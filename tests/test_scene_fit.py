@@ -276,6 +276,7 @@ def test_a_scene_screens_each_candidate_from_both_start_scales():
 class _Candidate:
     def __init__(self, points: int, parts: list[int] | None = None, parent: int | None = None):
         self.index, self.parts, self.parent, self.rejected = np.arange(points), parts or [], parent, None
+        self.summary: dict = {}
 
 
 def _screens(scores: dict[int, float]) -> dict:
@@ -327,6 +328,26 @@ def test_a_scene_asks_a_whole_about_every_part_some_class_explains(monkeypatch):
     covered = judge_splits(tree, _screens(scores), {"m": None}, SCENE_SCREEN, 0)
     assert covered == {1, 2, 3, 4} and sorted(set(asked)) == [(0, 1), (0, 2), (1, 3)]
 
+
+
+def test_a_join_of_clusters_apart_must_explain_every_part(monkeypatch):
+    """A sofa (1) and a chair (2) joined (0); the chair barely seen, so no class explains it
+    well, and the whole's fit lies far from its points. Joined within 10 cm, the whole is asked
+    about its best part alone and is one object; joined from clusters farther apart
+    (``joined_apart``: two clusters of their own), it is asked about every part, and the sofa
+    and the chair stand."""
+    from importlib import import_module
+
+    from jsrte.fit.scene import PART_EXPLAINED, SCENE_SCREEN, judge_splits
+
+    ratios = {(0, 1): 0.5, (0, 2): 2.0}
+    monkeypatch.setattr(import_module("jsrte.fit.screen"), "explained_ratio",
+                        lambda model, whole, part, *args, **kw: ratios[whole.candidate, part.candidate])
+    tree = [_Candidate(1000, [1, 2]), _Candidate(900, parent=0), _Candidate(100, parent=0)]
+    scores = _screens({0: 0.02, 1: 0.015, 2: 1.2 * PART_EXPLAINED})
+    assert judge_splits(tree, scores, {"m": None}, SCENE_SCREEN, 0) == {1, 2}
+    tree[0].summary["joined_apart"] = True
+    assert judge_splits(tree, scores, {"m": None}, SCENE_SCREEN, 0) == {0}
 
 
 def test_a_parts_own_fit_counts_at_least_the_floor_of_its_radius(monkeypatch):

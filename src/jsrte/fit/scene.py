@@ -198,7 +198,8 @@ class SceneResult:
                 "timing_s": self.timing}
 
 
-SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True)
+SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True,
+                                join_apart_m=0.4)
 """The segmentation of a scene whose class is unknown: without a class shape to say where to cut,
 every neck of normalized cut 0.008 or less is cut (the whole staying a candidate beside its
 parts), and fits of the whole and of its parts decide (:func:`judge_splits`). On the tuning
@@ -207,8 +208,10 @@ less; cuts within one object ran from 0.0007 to 0.02. Cuts along three eigenvect
 (``cut_vectors=3``) give more objects a candidate of their own but were not better once fitted
 (docs/clutter.md, Limits). Two clusters within joining reach that could each be an object (two
 tables side by side, a chair beside a bed) stay the parts of their join
-(``join_keeps_parts_without_class``), judged as a split's. Joining two up to 40 cm apart as well
-(``join_apart_m``: a bed whose middle the scan did not see) stays off (docs/clutter.md, Limits)."""
+(``join_keeps_parts_without_class``), judged as a split's; so do two up to 40 cm apart
+(``join_apart_m``): a bed whose middle the scan did not see. Most joins that far hold two
+objects: the judgement keeps their parts, and a whole judged one object whose fit is dropped
+gives way to its parts (:func:`_fit_parts_of_dropped`)."""
 
 
 SCENE_FIT_VEIL: VeilSettings | None = None
@@ -561,10 +564,13 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     is) as that part's own best fit (``jsrte.fit.screen.explained_ratio``, each fit by its own model). A
     single object's split asks it of the best part only; a scene keeps every part, and a table
     fitted to a table and the chair beside it explains the table's points well but not the
-    chair's. A whole of which a part (or a part's part) is one of ``boxes`` holds several
-    objects. ``screened``: candidate position -> its screens (or why it has none: a whole that
-    has none, or has a part with none, is not judged, its parts stand). ``ratio(whole, part)``:
-    that ratio where it is known already (None: from the best screens' fits)."""
+    chair's. A join of clusters farther apart than the segmentation's join (its summary's
+    ``joined_apart``) asks it of every part, explained well or not: a chair barely seen 30 cm from
+    a sofa is an object of its own unless the sofa's fit lies on it. A whole of which a part
+    (or a part's part) is one of ``boxes`` holds several objects. ``screened``: candidate
+    position -> its screens (or why it has none: a whole that has none, or has a part with none,
+    is not judged, its parts stand). ``ratio(whole, part)``: that ratio where it is known
+    already (None: from the best screens' fits)."""
     from jsrte.fit.screen import explained_ratio, split_or_whole
 
     def best(k: int) -> Screened:
@@ -577,7 +583,11 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
         if holds_box(whole):
             return float("inf")
         parts = {best_part}
+        every_part = candidates[whole].summary.get("joined_apart", False)
         for part, stands_for in zip(candidates[whole].parts, objects, strict=True):
+            if every_part:
+                parts.update(stands_for)
+                continue
             explained = [o for o in stands_for if best(o).score <= PART_EXPLAINED]
             parts.update(explained or ([part] if best(part).score <= PART_EXPLAINED else []))
         if ratio is not None:

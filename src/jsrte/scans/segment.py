@@ -145,9 +145,10 @@ class SegmentSettings:
     screen judges the merge against them); False: the merge alone is a candidate."""
     join_apart_m: float | None = None
     """Without a class and with ``join_keeps_parts_without_class``, two clusters farther apart than
-    ``join_m`` but within this, each of which could be an object and neither lying over the
-    other, are joined after the other joins, both staying candidates as the join's parts: the
-    head and the foot of a bed whose middle the scan did not see. None: no such join."""
+    ``join_m`` but within this, each of which could be an object, neither lying over the other
+    and neither a wall's piece nor a box (:func:`_join_apart`), are joined after the other joins,
+    both staying candidates as the join's parts: the head and the foot of a bed whose middle the
+    scan did not see. None: no such join (whole scenes: 0.4, ``jsrte.fit.scene.SCENE_SEGMENT``)."""
     join_keeps_parts_without_class: bool = False
     """Without a class (whole scenes, where every two big clusters closer than ``join_m`` merge),
     the two stay candidates as the merge's parts too: two tables 3-7 cm apart, or a chair beside
@@ -295,13 +296,13 @@ def segment_objects(
     clusters = [kept[labels == k] for k in range(labels.max(initial=-1) + 1)]
     clusters = _join(clusters, points, heights, shape, settings)
     clusters = _join_supported(clusters, points, heights, up, settings)
-    if shape is None and settings.join_keeps_parts_without_class and settings.join_apart_m:
-        clusters = _join_apart(clusters, points, heights, up, settings)
     sight = None
     if settings.peel_boxes and viewpoints is not None and len(viewpoints):
         sight = Sight(points if seen is None else np.asarray(seen, float), np.asarray(viewpoints, float))
     elif settings.peel_boxes and seen is not None:  # no cameras: the floor hidden under a box tells it
         sight = Sight(np.asarray(seen, float), None)
+    if shape is None and settings.join_keeps_parts_without_class and settings.join_apart_m:
+        clusters = _join_apart(clusters, points, heights, up, settings, sight)
     nodes: list[_Node] = []
     for c in clusters:
         _family_tree(c, points, heights, up, shape, settings, eps, nodes, sight=sight)
@@ -418,25 +419,28 @@ def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
 @dataclass
 class _Cluster:
     """A cluster of points (``index``) and the big clusters it was joined from on class evidence
-    alone (``members``; empty: none), which stay candidates as its parts."""
+    alone (``members``; empty: none), which stay candidates as its parts; ``apart``: they lie
+    farther apart than ``join_m`` (:func:`_join_apart`)."""
 
     index: np.ndarray
     members: list[_Cluster] = field(default_factory=list)
+    apart: bool = False
 
 
 @dataclass
 class _Node:
     """A cluster of a split tree: its points ``index``, the position of its ``parent`` in the
     tree's list (None: a root), a refused weak ``neck``, the value of the cut that split it
-    (``cut_value``; None: not split), whether it was joined from its parts (``joined``),
-    whether a box was taken out of it (``peeled``) and, for such a box, its evidence (``box``,
-    ``jsrte.scans.boxes.BoxEvidence``)."""
+    (``cut_value``; None: not split), whether it was joined from its parts (``joined``) lying
+    farther apart than ``join_m`` (``apart``), whether a box was taken out of it (``peeled``)
+    and, for such a box, its evidence (``box``, ``jsrte.scans.boxes.BoxEvidence``)."""
 
     index: np.ndarray
     parent: int | None
     neck: list[np.ndarray] = field(default_factory=list)
     cut_value: float | None = None
     joined: bool = False
+    apart: bool = False
     peeled: bool = False
     box: Any = None
 
@@ -459,7 +463,7 @@ def _family_tree(cluster: _Cluster, points: np.ndarray, heights: np.ndarray, up:
     if not cluster.members:
         _split_tree(cluster.index, points, heights, up, shape, s, eps, nodes, parent, depth, sight)
         return
-    nodes.append(_Node(cluster.index, parent, joined=True))
+    nodes.append(_Node(cluster.index, parent, joined=True, apart=cluster.apart))
     parent = len(nodes) - 1
     depth += shape is not None  # without a class the join uses up no level of cuts
     for member in cluster.members:
@@ -623,6 +627,8 @@ def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarr
             candidates[position[k]].summary["cut"] = round(nodes[k].cut_value, 5)
         if nodes[k].joined:
             candidates[position[k]].summary["joined"] = True
+        if nodes[k].apart:
+            candidates[position[k]].summary["joined_apart"] = True
         if nodes[k].peeled:
             candidates[position[k]].summary["box_taken_out"] = True
         if nodes[k].box is not None:
@@ -891,30 +897,57 @@ def _join_supported(clusters: list[_Cluster], points: np.ndarray, heights: np.nd
 
 
 def _join_apart(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
-                s: SegmentSettings) -> list[_Cluster]:
+                s: SegmentSettings, sight: Sight | None = None) -> list[_Cluster]:
     """Join, closest first, two ``clusters`` farther apart than ``join_m`` but within
     ``join_apart_m`` where their join is not too big to be an object and each could be one,
-    neither lying over the other (:func:`_kept_apart`) and neither a wall's piece (a vertical
-    slab thinner than ``min_depth_m``, rejected on its own): the two stay the join's members."""
+    neither lying over the other (:func:`_kept_apart`), neither a wall's piece (a vertical
+    slab thinner than ``min_depth_m``, rejected on its own) nor, where ``sight`` tells it, a box
+    (``jsrte.scans.boxes.reported_as_box``: no object's part): the two stay the join's members."""
     clusters = list(clusters)
-    walls = {id(c) for c in clusters if _vertical_depth(points[c.index], up) < s.min_depth_m}
     refused: set[tuple[int, int]] = set()  # pairs (by identity) already judged apart
+    gaps: dict[tuple[int, int], float] = {}  # (a joined cluster keeps its members, and their identities, alive)
+    parts: dict[int, bool] = {}
+
+    def gap(a: _Cluster, b: _Cluster) -> float:
+        if (id(a), id(b)) not in gaps:
+            gaps[id(a), id(b)] = _gap(points[a.index], points[b.index], s.join_apart_m)
+        return gaps[id(a), id(b)]
+
+    def may_be_part(c: _Cluster) -> bool:
+        if id(c) not in parts:
+            parts[id(c)] = not (_vertical_depth(points[c.index], up) < s.min_depth_m
+                                or _is_box(c.index, points, heights, up, sight))
+        return parts[id(c)]
+
     while True:
-        pairs = sorted((gap, i, j) for i in range(len(clusters)) for j in range(i + 1, len(clusters))
+        pairs = sorted((g, i, j) for i in range(len(clusters)) for j in range(i + 1, len(clusters))
                        if (id(clusters[i]), id(clusters[j])) not in refused
-                       and not {id(clusters[i]), id(clusters[j])} & walls
-                       and s.join_m < (gap := _gap(points[clusters[i].index], points[clusters[j].index],
-                                                   s.join_apart_m)) <= s.join_apart_m)
+                       and s.join_m < (g := gap(clusters[i], clusters[j])) <= s.join_apart_m
+                       and may_be_part(clusters[i]) and may_be_part(clusters[j]))
         for _, i, j in pairs:
             bigger, smaller = sorted((clusters[i], clusters[j]), key=lambda c: -len(c.index))
             union = np.concatenate([bigger.index, smaller.index])
             if not _too_big(points[union], heights[union], s) and _kept_apart(smaller.index, bigger, points,
                                                                                 heights, s):
-                clusters = [c for k, c in enumerate(clusters) if k not in (i, j)] + [_Cluster(union, [bigger, smaller])]
+                joined = _Cluster(union, [bigger, smaller], apart=True)
+                clusters = [c for k, c in enumerate(clusters) if k not in (i, j)] + [joined]
                 break
             refused.add((id(clusters[i]), id(clusters[j])))
         else:
             return clusters
+
+
+def _is_box(cluster: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+            sight: Sight | None) -> bool:
+    """Whether the points at ``cluster`` are a box that a scene reports as one
+    (``jsrte.scans.boxes.box_evidence`` with what the sensor saw, ``reported_as_box``); False
+    without ``sight``."""
+    from jsrte.scans.boxes import box_evidence, reported_as_box
+
+    if sight is None:
+        return False
+    floor_offset = float(np.median(points[cluster] @ up - heights[cluster]))
+    return reported_as_box(box_evidence(points[cluster], up, floor_offset, sight.seen, sight.viewpoints))
 
 
 def _attach_small(big: list[np.ndarray], small: list[np.ndarray], points: np.ndarray, join_m: float

@@ -11,7 +11,8 @@ Above the floor (found by :func:`jsrte.scans.preprocess.segment_floor`), in orde
    joined on the class's proportions stay candidates beside their union (its ``parts``): a
    chair beside a box can match the class's proportions too, and the quick fit decides.
    Without a class (a scene's ``join_keeps_parts_without_class``), two clusters that could
-   each be an object, neither over the other, stay the parts of their join.
+   each be an object, neither over the other, stay the parts of their join; so do two up to
+   ``join_apart_m`` apart, neither a wall's piece nor a box (a bed whose middle was not seen).
 4. **Split**: a cluster that holds two touching objects is cut in two at its narrowest neck
    (normalized cut of its neighbour graph); the split is kept when one of its parts matches
    the class better than the whole (:func:`class_score`), and its parts are cut again. The

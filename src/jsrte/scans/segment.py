@@ -907,7 +907,7 @@ def _join_apart(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarra
     clusters = list(clusters)
     refused: set[tuple[int, int]] = set()  # pairs (by identity) already judged apart
     gaps: dict[tuple[int, int], float] = {}  # (a joined cluster keeps its members, and their identities, alive)
-    parts: dict[int, bool] = {}
+    could_be_part: dict[int, bool] = {}  # by identity: neither a wall's piece nor a box
 
     def gap(a: _Cluster, b: _Cluster) -> float:
         if (id(a), id(b)) not in gaps:
@@ -915,10 +915,10 @@ def _join_apart(clusters: list[_Cluster], points: np.ndarray, heights: np.ndarra
         return gaps[id(a), id(b)]
 
     def may_be_part(c: _Cluster) -> bool:
-        if id(c) not in parts:
-            parts[id(c)] = not (_vertical_depth(points[c.index], up) < s.min_depth_m
-                                or _is_box(c.index, points, heights, up, sight))
-        return parts[id(c)]
+        if id(c) not in could_be_part:
+            could_be_part[id(c)] = not (_vertical_depth(points[c.index], up) < s.min_depth_m
+                                        or _is_box(c.index, points, heights, up, sight))
+        return could_be_part[id(c)]
 
     while True:
         pairs = sorted((g, i, j) for i in range(len(clusters)) for j in range(i + 1, len(clusters))

@@ -993,3 +993,65 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
     for dropped_by in ("second fit", "coverage"):
         assert _fit_parts_of_dropped([whole(dropped_by)], cands, {}, {}, {}, options, None, workers=1) == []
     assert fitted == []
+
+
+def test_a_join_of_clusters_apart_judged_two_objects_is_fitted_whole_when_a_part_is_not_found(monkeypatch):
+    """A join of clusters apart judged to hold two objects, one part found only as a doubtful
+    fit and the other not at all (a four-poster's foot and posts), is fitted whole: its fit
+    stands in the stead of the part's object when it is flagged ok (or doubtful as that part's
+    fit), lies on 0.6 of each part's points and on more points than the part's fit. A whole fit
+    that misses one part (two objects), is doubtful where the part's fit is ok, or lies on no
+    more points, leaves the parts as they were; a join whose parts both stand for objects
+    flagged ok is not fitted again."""
+    from types import SimpleNamespace
+
+    from jsrte.fit import scene as scene_module
+    from jsrte.fit.scene import SceneObject, _fit_wholes_apart
+    from jsrte.options import FitOptions
+
+    candidates = [_Candidate(50, parts=[1, 2]), _Candidate(30, parent=0), _Candidate(20, parent=0)]
+    candidates[0].summary["joined_apart"] = True
+    candidates[2].index = np.arange(30, 50)
+    points = np.c_[np.arange(50.0), np.zeros((50, 2))]  # a point's x is its number
+    cands = SimpleNamespace(segmentation=SimpleNamespace(candidates=candidates),
+                            segmented=SimpleNamespace(cloud=SimpleNamespace(points=points), index=np.arange(50)))
+    whole_fit: dict = {}
+    fitted = []
+
+    def fit_object(obj, *args):
+        fitted.append(obj.candidate)
+        obj.model = "m"
+        obj.result = SimpleNamespace(flag=whole_fit["flag"], quality={"seen_through": 0.0},
+                                     lies_on=whole_fit["lies_on"])
+
+    monkeypatch.setattr(scene_module, "_fit_object", fit_object)
+    monkeypatch.setattr(scene_module, "_flag_scene_object", lambda obj, seed: None)
+    monkeypatch.setattr(scene_module, "_mark_unexplained", lambda obj, models: None)
+    monkeypatch.setattr(scene_module, "_points_on_fit",
+                        lambda obj, pts, models: int(np.isin(pts[:, 0], obj.result.lies_on).sum()))
+
+    def run(lies_on: np.ndarray, flag: str = "ok", part_flag: str = "doubtful", second: bool = False):
+        whole_fit.update(flag=flag, lies_on=lies_on)
+        part = SceneObject(4, 1, points[:30], model="m",
+                           result=SimpleNamespace(flag=part_flag, quality={}, lies_on=np.arange(30)))
+        objects = [part]
+        if second:
+            objects.append(SceneObject(5, 2, points[30:], model="m",
+                                       result=SimpleNamespace(flag="ok", quality={}, lies_on=np.arange(30, 50))))
+        covered = {0}
+        added = _fit_wholes_apart(objects, cands, _screens({0: 0.03, 1: 0.01, 2: 0.05}), covered, {}, FitOptions(),
+                                  None)
+        return added, part, covered
+
+    added, part, covered = run(np.arange(48))
+    assert [(o.index, o.candidate, o.status) for o in added] == [(5, 0, "ok")] and covered == set()
+    assert (part.status, part.unexplained_by) == ("unexplained", "piece") and "object 5" in part.reason
+    added, part, covered = run(np.arange(48), "doubtful")  # no worse than the doubtful part's fit
+    assert [o.index for o in added] == [5] and part.status == "unexplained"
+    for lies_on, flag, part_flag in ((np.r_[0:30, 30:35], "ok", "doubtful"), (np.arange(48), "doubtful", "ok"),
+                                     (np.r_[0:18, 30:42], "ok", "doubtful")):
+        added, part, covered = run(lies_on, flag, part_flag)
+        assert added == [] and part.status == "ok" and covered == {0}
+    fitted.clear()
+    added, part, covered = run(np.arange(48), part_flag="ok", second=True)
+    assert fitted == [] and added == [] and covered == {0}

@@ -80,7 +80,8 @@ class SceneObject:
     choice : its quick fits by every model (``jsrte.fit.screen.Choice``; None: not screened,
         a text: why it could not be)
     unexplained_by : which check left it unexplained: "share", "size", "coverage", "top",
-        "second fit" or "seen through" ("" when it is not)
+        "second fit", "seen through", or "piece" (a piece of a whole fitted in its stead,
+        :func:`_fit_wholes_apart`; "" when it is not)
     box : the evidence that it is a box, its cuboid in it (None: not a box)
     leftover_of : the found object whose fit left its points unexplained (:func:`_fit_leftovers`;
         None: a candidate of the segmentation)
@@ -486,6 +487,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         _drop_seen_through(objects)
         objects += _fit_parts_of_dropped(objects, cands, screened, found_boxes, models, options, screen, workers,
                                          views)
+        objects += _fit_wholes_apart(objects, cands, screened, covered, models, options, screen, views)
     if leftovers:
         with _timed(timing, "leftovers"):
             extra = _fit_leftovers(objects, cands, models, options, screen, boxes, workers, views)
@@ -507,7 +509,8 @@ PHASES = ("segmentation", "quick fits", "full fits", "checks", "leftovers")
 ``timing_s``) records: models loaded and the scan segmented; every candidate fitted quickly by
 every model and the splits judged; the full fits (contending classes and refits included); the
 coverage, size and second-fit checks with the other-class fits they call for and the fits of
-the parts of dropped wholes (:func:`_fit_parts_of_dropped`); the leftovers'
+the parts of dropped wholes (:func:`_fit_parts_of_dropped`) and of the joins apart fitted whole
+(:func:`_fit_wholes_apart`); the leftovers'
 clustering, quick fits, full fits and checks (:func:`_fit_leftovers`)."""
 
 
@@ -924,6 +927,85 @@ def _fit_parts_of_dropped(objects: list[SceneObject], cands: object, screened: d
         added += new
         dropped = [o for o in new if o.unexplained_by in PARTS_AFTER]
     return added
+
+
+def _fit_wholes_apart(objects: list[SceneObject], cands: object, screened: dict[int, Choice | str], covered: set[int],
+                      models: dict, options: FitOptions, screen: ScreenSettings,
+                      views: CameraViews | None = None) -> list[SceneObject]:
+    """Every join of clusters apart (its summary's ``joined_apart``) that the quick fits judged to
+    hold several objects (in ``covered``), a part of which stands for no object found and flagged
+    ``ok`` (a bed's foot fitted as a bed off its place, its posts as nothing), fitted in full as
+    one object, smallest first, and flagged and checked as the others. It stands in the stead of
+    the objects found among its parts when its fit is found (flagged ``ok``, or no worse than
+    every one of them: ``doubtful`` where they all are), lies on
+    :data:`FOUND_SHARE` of every part's points and on more of its own than those objects' fits
+    lie on theirs, and is no second fit of another object: they become ``unexplained`` (pieces of
+    it) and it leaves ``covered``. Returns the wholes that stand, numbered after ``objects``."""
+    candidates, segmented = cands.segmentation.candidates, cands.segmented
+    cloud_points = np.asarray(segmented.cloud.points, float)
+    added: list[SceneObject] = []
+
+    def points_of(k: int) -> np.ndarray:
+        return cloud_points[segmented.index[candidates[k].index]]
+
+    def subtree(k: int) -> set[int]:
+        return {k}.union(*(subtree(p) for p in candidates[k].parts))
+
+    def found_in(k: int) -> list[SceneObject]:
+        return [o for o in objects + added if o.status == "ok" and o.result is not None and o.candidate in subtree(k)]
+
+    def stands_for_ok(part: int) -> bool:
+        return any(o.result.flag == "ok" for o in found_in(part))
+
+    joins = sorted((k for k in covered
+                    if candidates[k].summary.get("joined_apart") and isinstance(screened.get(k), Choice)),
+                   key=lambda k: len(candidates[k].index))
+    for k in joins:
+        if all(stands_for_ok(p) for p in candidates[k].parts):
+            continue
+        whole = SceneObject(max(o.index for o in objects + added) + 1, k, points_of(k), choice=screened[k], views=views)
+        fit_whole_checked(whole, cands, models, options, screen)
+        pieces = found_in(k)
+        if not whole_stands(whole, [points_of(p) for p in candidates[k].parts],
+                            sum(_points_on_fit(o, o.points, models) for o in pieces),
+                            [o.result.flag for o in pieces], models):
+            continue
+        others = [o for o in objects + added if o.status == "ok" and all(o is not p for p in pieces)]
+        _drop_second_fits(others + [whole], models, options.seed, newcomers=[whole])
+        if whole.status != "ok":
+            continue
+        for piece in pieces:
+            piece.status, piece.unexplained_by = "unexplained", "piece"
+            piece.reason = f"a piece of object {whole.index}, one {whole.model} fitted to the clusters apart it joins"
+        covered.discard(k)
+        added.append(whole)
+    return added
+
+
+def fit_whole_checked(whole: SceneObject, cands: object, models: dict, options: FitOptions,
+                      screen: ScreenSettings) -> None:
+    """Fit ``whole`` (its ``choice`` the quick fits of its candidate) as every object is fitted,
+    flag it and run the checks that drop a fit (share, size, coverage, top, seen through)."""
+    _fit_object(whole, cands, models, options, screen)
+    if whole.result is None:
+        return
+    _flag_scene_object(whole, options.seed)
+    _mark_unexplained(whole, models)
+    _drop_seen_through([whole])
+
+
+def whole_stands(whole: SceneObject, parts: list[np.ndarray], on_pieces: int, piece_flags: list[str],
+                 models: dict) -> bool:
+    """Whether the fit of a join of clusters apart stands in the stead of the objects found
+    among its parts (:func:`_fit_wholes_apart`): it is found (``whole.status`` "ok"), flagged
+    ``ok`` or no worse than every such object (``piece_flags``), lies on :data:`FOUND_SHARE` of
+    each of ``parts`` (each (m, 3) a part's points) and on more of its points than those
+    objects' fits lie on theirs (``on_pieces``, a count)."""
+    if whole.status != "ok" or (whole.result.flag != "ok" and "ok" in piece_flags):
+        return False
+    if any(_points_on_fit(whole, points, models) < FOUND_SHARE * len(points) for points in parts):
+        return False
+    return _points_on_fit(whole, whole.points, models) > on_pieces
 
 
 def _add_leftover_candidates(objects: list[SceneObject], cands: object, models: dict) -> dict[int, int]:

@@ -11,7 +11,7 @@ run of seed 0 and ``OBJECTS_CSV`` its rows, from a build without this step. The 
 judgement is not replayed: a join is taken as split where no found object has its point count,
 and an object found stands for the candidate of its point count. The pieces' fits count
 ``quality_inlier_share`` times their points; the check for a second fit of another object is
-left out. One full fit (about 40 s on one thread) per join looked at.
+left out. One full fit per join looked at (24-215 s on one thread on the reported rooms).
 """
 
 from __future__ import annotations
@@ -108,10 +108,9 @@ def _room(room: int, room_dir: Path, rows: list[dict], models: dict, options: Fi
         fit_whole_checked(whole, cands, models, options, screen)
         seconds = time.perf_counter() - started
         pieces = found_in(k)
-        stands = whole.result is not None and whole_stands(
-            whole, [cloud[segmented.index[candidates[p].index]] for p in c.parts],
-            round(sum(float(r["quality_inlier_share"]) * int(r["points"]) for r in pieces)),
-            [r["flag"] for r in pieces], models)
+        stands = whole_stands(whole, [cloud[segmented.index[candidates[p].index]] for p in c.parts],
+                              round(sum(float(r["quality_inlier_share"]) * int(r["points"]) for r in pieces)),
+                              [r["flag"] for r in pieces], models)
         held = labels[segmented.index[c.index]]
         values, counts = np.unique(held[held >= 0], return_counts=True)
         top = int(values[np.argmax(counts)])

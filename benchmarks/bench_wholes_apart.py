@@ -1,7 +1,7 @@
 """Joins of clusters apart fitted whole: for every join of a room's clusters 10-40 cm apart
 (``joined_apart``) that a scenes run split, a part of which stands for no object found and
 flagged ``ok``, the join's full fit as the scene makes it and whether it stands in the parts'
-stead (``jsrte.fit.scene.whole_stands``), with its F@5% against the true object most of its
+stead (``jsrte.fit.scene.whole_turned_down``), with its F@5% against the true object most of its
 points are.
 
 ``python benchmarks/bench_wholes_apart.py ROOMS_DIR OBJECTS_CSV [--first 100 --rooms 70]``
@@ -40,7 +40,7 @@ from jsrte.fit.scene import (
     _screen_candidate,
     candidate_boxes,
     fit_whole_checked,
-    whole_stands,
+    whole_turned_down,
 )
 from jsrte.options import FitOptions
 from jsrte.presets import SCENE_PRESET
@@ -108,9 +108,10 @@ def _room(room: int, room_dir: Path, rows: list[dict], models: dict, options: Fi
         fit_whole_checked(whole, cands, models, options, screen)
         seconds = time.perf_counter() - started
         pieces = found_in(k)
-        stands = whole_stands(whole, [cloud[segmented.index[candidates[p].index]] for p in c.parts],
-                              round(sum(float(r["quality_inlier_share"]) * int(r["points"]) for r in pieces)),
-                              [r["flag"] for r in pieces], models)
+        why = whole_turned_down(whole, [cloud[segmented.index[candidates[p].index]] for p in c.parts],
+                                round(sum(float(r["quality_inlier_share"]) * int(r["points"]) for r in pieces)),
+                                [r["flag"] for r in pieces], models)
+        stands = not why
         held = labels[segmented.index[c.index]]
         values, counts = np.unique(held[held >= 0], return_counts=True)
         top = int(values[np.argmax(counts)])
@@ -118,7 +119,7 @@ def _room(room: int, room_dir: Path, rows: list[dict], models: dict, options: Fi
         verdicts.append(f"{'stands' if stands else 'turned down'} ({'one object' if one else 'several'})")
         print(f"room {room} join {k} ({len(c.index)} points, {'one object' if one else 'several objects'}): "
               f"{whole.model} {whole.status} {'' if whole.result is None else whole.result.flag} "
-              f"{whole.unexplained_by or ''} in {seconds:.0f} s -> {'stands' if stands else 'turned down'}; "
+              f"in {seconds:.0f} s -> {'stands' if stands else 'turned down: ' + why}; "
               f"{_against_truth(whole, drawn, truth[top])}; pieces: "
               + ", ".join(f"{r['found_class']} {r['flag']} {r['outcome']} F {r['fscore'] or '-'}" for r in pieces),
               flush=True)

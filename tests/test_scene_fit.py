@@ -1006,7 +1006,7 @@ def test_a_join_of_clusters_apart_judged_two_objects_is_fitted_whole_when_a_part
     from types import SimpleNamespace
 
     from jsrte.fit import scene as scene_module
-    from jsrte.fit.scene import SceneObject, _fit_wholes_apart
+    from jsrte.fit.scene import SceneObject, _covered_json, _fit_wholes_apart
     from jsrte.options import FitOptions
 
     candidates = [_Candidate(50, parts=[1, 2]), _Candidate(30, parent=0), _Candidate(20, parent=0)]
@@ -1038,9 +1038,12 @@ def test_a_join_of_clusters_apart_judged_two_objects_is_fitted_whole_when_a_part
         if second:
             objects.append(SceneObject(5, 2, points[30:], model="m",
                                        result=SimpleNamespace(flag="ok", quality={}, lies_on=np.arange(30, 50))))
-        covered = {0}
+        covered, turned_down = {0}, {}
         added = _fit_wholes_apart(objects, cands, _screens({0: 0.03, 1: 0.01, 2: 0.05}), covered, {}, FitOptions(),
-                                  None)
+                                  None, turned_down=turned_down)
+        assert not (added and turned_down)
+        assert all(why.startswith("fitted whole as a m, turned down: ") for why in turned_down.values())
+        run.turned_down = turned_down
         return added, part, covered
 
     added, part, covered = run(np.arange(48))
@@ -1048,10 +1051,12 @@ def test_a_join_of_clusters_apart_judged_two_objects_is_fitted_whole_when_a_part
     assert (part.status, part.unexplained_by) == ("unexplained", "piece") and "object 5" in part.reason
     added, part, covered = run(np.arange(48), "doubtful")  # no worse than the doubtful part's fit
     assert [o.index for o in added] == [5] and part.status == "unexplained"
-    for lies_on, flag, part_flag in ((np.r_[0:30, 30:35], "ok", "doubtful"), (np.arange(48), "doubtful", "ok"),
-                                     (np.r_[0:18, 30:42], "ok", "doubtful")):
+    for lies_on, flag, part_flag, why in ((np.r_[0:30, 30:35], "ok", "doubtful", "lies on 25% of a part's points"),
+                                          (np.arange(48), "doubtful", "ok", "flagged doubtful, where a piece's fit"),
+                                          (np.r_[0:18, 30:42], "ok", "doubtful", "lies on 30 points, its pieces'")):
         added, part, covered = run(lies_on, flag, part_flag)
-        assert added == [] and part.status == "ok" and covered == {0}
+        assert added == [] and part.status == "ok" and covered == {0} and why in run.turned_down[0]
+    assert _covered_json(candidates, covered, run.turned_down)[0]["fitted_whole"] == run.turned_down[0]
     fitted.clear()
     added, part, covered = run(np.arange(48), part_flag="ok", second=True)
-    assert fitted == [] and added == [] and covered == {0}
+    assert fitted == [] and added == [] and covered == {0} and run.turned_down == {}

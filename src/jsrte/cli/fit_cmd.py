@@ -108,7 +108,8 @@ def _fit_scene(scan: Path, out: Path, *, model: str, options: object, overwrite:
     for skip in scene.skipped:
         typer.echo(f"skipped candidate {skip['candidate']}: {skip['points']} points, {skip['reason']}")
     for cover in scene.covered:
-        typer.echo(f"set aside candidate {cover['candidate']}: {cover['points']} points, {cover['reason']}")
+        whole = f"; {cover['fitted_whole']}" if "fitted_whole" in cover else ""
+        typer.echo(f"set aside candidate {cover['candidate']}: {cover['points']} points, {cover['reason']}{whole}")
     failed = len(scene.objects) - len(scene.fitted) - len(scene.boxes)
     typer.echo(f"{len(scene.found)} object(s) fitted, {len(scene.boxes)} box(es), "
                f"{len(scene.fitted) - len(scene.found)} unexplained, {failed} failed, "

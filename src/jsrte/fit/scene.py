@@ -487,7 +487,8 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         _drop_seen_through(objects)
         objects += _fit_parts_of_dropped(objects, cands, screened, found_boxes, models, options, screen, workers,
                                          views)
-        objects += _fit_wholes_apart(objects, cands, screened, covered, models, options, screen, views)
+        turned_down: dict[int, str] = {}
+        objects += _fit_wholes_apart(objects, cands, screened, covered, models, options, screen, views, turned_down)
     if leftovers:
         with _timed(timing, "leftovers"):
             extra = _fit_leftovers(objects, cands, models, options, screen, boxes, workers, views)
@@ -501,7 +502,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     return SceneResult(objects, skipped, seg.to_json(), cloud_points, up=np.asarray(segmented.up, float),
                        floor_offset=None if floor is None else float(floor.offset),
                        options=options.record(), models=list(models),
-                       covered=_covered_json(seg.candidates, covered), timing=timing)
+                       covered=_covered_json(seg.candidates, covered, turned_down), timing=timing)
 
 
 PHASES = ("segmentation", "quick fits", "full fits", "checks", "leftovers")
@@ -604,13 +605,18 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
     return split_or_whole(candidates, scores, explains, settings) | unjudged
 
 
-def _covered_json(candidates: list, covered: set[int]) -> list[dict[str, Any]]:
-    """scene.json's record of the candidates judged no object of their own."""
+def _covered_json(candidates: list, covered: set[int], fitted_whole: dict[int, str] | None = None
+                  ) -> list[dict[str, Any]]:
+    """scene.json's record of the candidates judged no object of their own; ``fitted_whole``:
+    candidate -> why its fit in full, made by :func:`_fit_wholes_apart`, was turned down."""
     out = []
     for k in sorted(covered):
         c = candidates[k]
         reason = "holds several objects (fitted as its parts)" if c.parts else f"a piece of candidate {c.parent}"
-        out.append({"candidate": k, "points": len(c.index), "reason": reason})
+        entry = {"candidate": k, "points": len(c.index), "reason": reason}
+        if fitted_whole and k in fitted_whole:
+            entry["fitted_whole"] = fitted_whole[k]
+        out.append(entry)
     return out
 
 
@@ -930,8 +936,8 @@ def _fit_parts_of_dropped(objects: list[SceneObject], cands: object, screened: d
 
 
 def _fit_wholes_apart(objects: list[SceneObject], cands: object, screened: dict[int, Choice | str], covered: set[int],
-                      models: dict, options: FitOptions, screen: ScreenSettings,
-                      views: CameraViews | None = None) -> list[SceneObject]:
+                      models: dict, options: FitOptions, screen: ScreenSettings, views: CameraViews | None = None,
+                      turned_down: dict[int, str] | None = None) -> list[SceneObject]:
     """Every join of clusters apart (its summary's ``joined_apart``) that the quick fits judged to
     hold several objects (in ``covered``), a part of which stands for no object found and flagged
     ``ok`` (a bed's foot fitted as a bed off its place, its posts as nothing), fitted in full as
@@ -940,7 +946,8 @@ def _fit_wholes_apart(objects: list[SceneObject], cands: object, screened: dict[
     every one of them: ``doubtful`` where they all are), lies on
     :data:`FOUND_SHARE` of every part's points and on more of its own than those objects' fits
     lie on theirs, and is no second fit of another object: they become ``unexplained`` (pieces of
-    it) and it leaves ``covered``. Returns the wholes that stand, numbered after ``objects``."""
+    it) and it leaves ``covered``; else ``turned_down`` (when given) says why, by candidate.
+    Returns the wholes that stand, numbered after ``objects``."""
     candidates, segmented = cands.segmentation.candidates, cands.segmented
     cloud_points = np.asarray(segmented.cloud.points, float)
     added: list[SceneObject] = []
@@ -966,13 +973,16 @@ def _fit_wholes_apart(objects: list[SceneObject], cands: object, screened: dict[
         whole = SceneObject(max(o.index for o in objects + added) + 1, k, points_of(k), choice=screened[k], views=views)
         fit_whole_checked(whole, cands, models, options, screen)
         pieces = found_in(k)
-        if not whole_stands(whole, [points_of(p) for p in candidates[k].parts],
-                            sum(_points_on_fit(o, o.points, models) for o in pieces),
-                            [o.result.flag for o in pieces], models):
-            continue
-        others = [o for o in objects + added if o.status == "ok" and all(o is not p for p in pieces)]
-        _drop_second_fits(others + [whole], models, options.seed, newcomers=[whole])
-        if whole.status != "ok":
+        why = whole_turned_down(whole, [points_of(p) for p in candidates[k].parts],
+                                sum(_points_on_fit(o, o.points, models) for o in pieces),
+                                [o.result.flag for o in pieces], models)
+        if not why:
+            others = [o for o in objects + added if o.status == "ok" and all(o is not p for p in pieces)]
+            _drop_second_fits(others + [whole], models, options.seed, newcomers=[whole])
+            why = whole.reason if whole.status != "ok" else ""
+        if why:
+            if turned_down is not None:
+                turned_down[k] = f"fitted whole as a {whole.model or 'shape'}, turned down: {why}"
             continue
         for piece in pieces:
             piece.status, piece.unexplained_by = "unexplained", "piece"
@@ -994,18 +1004,25 @@ def fit_whole_checked(whole: SceneObject, cands: object, models: dict, options: 
     _drop_seen_through([whole])
 
 
-def whole_stands(whole: SceneObject, parts: list[np.ndarray], on_pieces: int, piece_flags: list[str],
-                 models: dict) -> bool:
-    """Whether the fit of a join of clusters apart stands in the stead of the objects found
-    among its parts (:func:`_fit_wholes_apart`): it is found (``whole.status`` "ok"), flagged
-    ``ok`` or no worse than every such object (``piece_flags``), lies on :data:`FOUND_SHARE` of
-    each of ``parts`` (each (m, 3) a part's points) and on more of its points than those
-    objects' fits lie on theirs (``on_pieces``, a count)."""
-    if whole.status != "ok" or (whole.result.flag != "ok" and "ok" in piece_flags):
-        return False
-    if any(_points_on_fit(whole, points, models) < FOUND_SHARE * len(points) for points in parts):
-        return False
-    return _points_on_fit(whole, whole.points, models) > on_pieces
+def whole_turned_down(whole: SceneObject, parts: list[np.ndarray], on_pieces: int, piece_flags: list[str],
+                      models: dict) -> str:
+    """Why the fit of a join of clusters apart does not stand in the stead of the objects found
+    among its parts (:func:`_fit_wholes_apart`; "" when it does): it must be found
+    (``whole.status`` "ok"), flagged ``ok`` or no worse than every such object
+    (``piece_flags``), lie on :data:`FOUND_SHARE` of each of ``parts`` (each (m, 3) a part's
+    points) and on more of its points than those objects' fits lie on theirs (``on_pieces``, a
+    count)."""
+    if whole.status != "ok":
+        return whole.reason or whole.status
+    if whole.result.flag != "ok" and "ok" in piece_flags:
+        return f"flagged {whole.result.flag}, where a piece's fit is ok"
+    shares = [_points_on_fit(whole, points, models) / max(len(points), 1) for points in parts]
+    if min(shares) < FOUND_SHARE:
+        return f"it lies on {min(shares):.0%} of a part's points (a found object on {FOUND_SHARE:.0%} or more)"
+    on_whole = _points_on_fit(whole, whole.points, models)
+    if on_whole <= on_pieces:
+        return f"it lies on {on_whole} points, its pieces' fits on {on_pieces}"
+    return ""
 
 
 def _add_leftover_candidates(objects: list[SceneObject], cands: object, models: dict) -> dict[int, int]:

@@ -30,6 +30,11 @@ its cameras (the JSON sidecar), its up axis given as ``--up`` would give it.
 Also printed: the candidates the scene would report as boxes (``jsrte.scans.boxes.candidate_boxes``,
 before any fit), each counted as the true box or piece of furniture most of its points are: how
 many of the rooms' boxes are reported, and how many candidates of furniture are taken for one.
+
+``--regroup`` counts more candidates, not made by the segmentation: where a whole was cut in two
+(A, B) and part A cut again (A1, A2), the unions B + A1 and B + A2 where they touch (points within
+``join_m`` of each other): what undoing a first cut through one object (a bed cut across, a chair
+left with one half) would give, and how many candidates more it would cost.
 """
 
 from __future__ import annotations
@@ -41,6 +46,8 @@ from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 OUTCOMES = ("own", "merged", "pieces", "impure", "unseen")
 
@@ -57,11 +64,13 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--without-cameras", action="store_true",
                         help="segment each scan without its cameras (JSON sidecar), its up axis given")
+    parser.add_argument("--regroup", action="store_true",
+                        help="also count the unions of a cut's part with its sibling's touching parts")
     args = parser.parse_args()
 
     rooms = range(args.first, args.first + args.rooms)
     jobs = [(args.rooms_dir / f"{r:03d}", r, args.seed, args.settings, args.share, args.purity,
-             args.without_cameras) for r in rooms]
+             args.without_cameras, args.regroup) for r in rooms]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(_room, *zip(*jobs, strict=True)))
     rows = [row for room_rows, _, _ in results for row in room_rows if row["class"] != "box"]
@@ -83,13 +92,13 @@ def main() -> None:
 
 
 def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, purity: float,
-          without_cameras: bool = False) -> tuple[list[dict], int, float]:
+          without_cameras: bool = False, regroup: bool = False) -> tuple[list[dict], int, float]:
     """The furniture of one room, each with its outcome (:data:`OUTCOMES`); the room's candidates
-    the scene would screen; the seconds its segmentation took."""
+    the scene would screen (``regroup``: with the unions :func:`_regrouped` adds); the seconds
+    its segmentation took."""
     import shutil
     import tempfile
 
-    import numpy as np
     import torch
 
     from jsrte.errors import JsrteError
@@ -120,19 +129,45 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
     if len(segmented.cloud.points) != len(labels):
         raise SystemExit(f"{room_dir}: labels.npy has {len(labels)} labels for {len(segmented.cloud.points)} points")
     held = []
-    for k in cands.possible():
-        index = segmented.index[segmented.segmentation.candidates[k].index]
-        values, counts = np.unique(labels[index], return_counts=True)
-        held.append(dict(zip(values.tolist(), counts.tolist(), strict=True)))
+    def objects_held(index: np.ndarray) -> dict[int, int]:
+        values, counts = np.unique(labels[segmented.index[index]], return_counts=True)
+        return dict(zip(values.tolist(), counts.tolist(), strict=True))
+
+    held = [objects_held(segmented.segmentation.candidates[k].index) for k in cands.possible()]
     as_box = Counter()  # object index -> candidates reported as a box that are mostly it
     possible = cands.possible()
     for k in candidate_boxes(cands, possible):
         counts = held[possible.index(k)]
         as_box[max(counts, key=counts.__getitem__)] += 1
+    if regroup:
+        settings = replace(SCENE_SEGMENT, **_settings(changes))
+        held += [objects_held(index) for index in _regrouped(segmented.segmentation.candidates,
+                                                             np.asarray(segmented.cloud.points), settings.join_m)]
     rows = [{"room": room, "class": entry["class"], "reported_as_box": as_box[entry["index"]],
              "outcome": _outcome(entry["index"], int((labels == entry["index"]).sum()), held, share, purity)}
             for entry in truth["objects"]]
     return rows, len(held), seconds
+
+
+def _regrouped(candidates: list, points: np.ndarray, touch_m: float) -> list[np.ndarray]:
+    """The point indices of B + Ai for every candidate not rejected cut in two (A, B) whose part A
+    was cut again (into A1, A2), where B and Ai have points within ``touch_m`` (metres) of each
+    other; ``points`` (n, 3) the segmented cloud's."""
+    from pykdtree.kdtree import KDTree
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    unions = []
+    for whole in candidates:
+        if whole.rejected or len(whole.parts) != 2:
+            continue
+        for cut_again, other in (whole.parts, whole.parts[::-1]):
+            near_other = KDTree(points[candidates[other].index])
+            for piece in candidates[cut_again].parts:
+                index = candidates[piece].index
+                gaps, _ = near_other.query(points[index], k=1)
+                if gaps.min() <= touch_m:
+                    unions.append(np.concatenate([candidates[other].index, index]))
+    return unions
 
 
 def _outcome(index: int, total: int, held: list[dict[int, int]], share: float, purity: float) -> str:

@@ -610,6 +610,34 @@ def test_without_a_class_two_pieces_apart_stay_candidates_beside_their_join(gap,
         assert sorted(both[0].parts) == sorted(heads + feet)
 
 
+@pytest.mark.parametrize(("underside", "scene", "candidate"), [
+    (0.72, True, True),  # a table's top over a pedestal the scan did not see
+    (0.45, True, False),  # a piece of a sofa's seat or a bed's mattress
+    (0.72, False, False),  # off (the default), every cluster is as tall as it is thick
+])
+def test_a_top_floating_at_table_height_is_a_candidate_with_floating_tops(underside, scene, candidate):
+    """A slab 4 cm thick, 1 m across, its underside ``underside`` above the floor, nothing seen
+    under it, a chair 2 m away: a whole scene's segmentation with ``floating_top_m`` 0.6 takes
+    the slab for a candidate where it floats 0.6 m or more above the floor (as tall as its top),
+    and rejects it as too flat lower down."""
+    from jsrte.fit.scene import SCENE_SEGMENT
+
+    top = trimesh.creation.box([1.0, 0.04, 0.8],
+                               transform=trimesh.transformations.translation_matrix([0, underside + 0.02, 0]))
+    chair = stand_in_chair()
+    chair.apply_translation([2.0, 0.0, 0.0])
+    slab_points = _surface_points(top, int(6000 * top.area), 0)
+    points = np.concatenate([slab_points, _surface_points(chair, int(6000 * chair.area), 1)])
+    settings = replace(SCENE_SEGMENT, floating_top_m=0.6) if scene else SegmentSettings()
+    result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0),
+                             settings=settings)
+    (slab,) = [c for c in result.candidates
+               if len(c.index) > 0.98 * len(slab_points) and c.index.max() < len(slab_points)]
+    assert (slab.rejected == "") == candidate
+    if not candidate:
+        assert slab.rejected.startswith("too flat")
+
+
 @pytest.mark.parametrize("floor_seen", [True, False])
 def test_a_box_apart_from_a_piece_of_furniture_is_not_joined_to_it(floor_seen):
     """A box (40 cm a side) 25 cm from a bed's foot (the mattress): within the far join's reach,

@@ -163,6 +163,12 @@ class SegmentSettings:
     """Clusters of fewer points are shreds: joined to a neighbour if near one, never cut."""
     min_height_m: float = 0.15
     """Lower than this (2nd to 98th percentile of the heights above the floor): too flat."""
+    floating_top_m: float | None = None
+    """A cluster whose underside (2nd percentile of its heights) lies this far or more above the
+    floor is as tall as its top (98th percentile) for the flatness test: a table's top seen
+    without the pedestal or legs under it, which it hides from cameras above, stands on
+    something. None: every cluster is as tall as its own thickness (whole scenes too: the fits
+    of a top alone did not find its table; docs/clutter.md, Limits)."""
     min_width_m: float = 0.08
     """Narrower than this across (largest horizontal side): too thin."""
     min_depth_m: float = 0.013
@@ -1000,7 +1006,9 @@ def _candidate(index: np.ndarray, points: np.ndarray, heights: np.ndarray, up: n
     """A cluster described and judged: too few points, too flat, thin or big, or a candidate."""
     p, h = points[index], heights[index]
     top = float(np.percentile(h, 98)) if len(h) else 0.0
-    tall = top - float(np.percentile(h, 2)) if len(h) else 0.0
+    underside = float(np.percentile(h, 2)) if len(h) else 0.0
+    floats = s.floating_top_m is not None and underside >= s.floating_top_m
+    tall = top if floats else top - underside
     width = _width(p, h)
     summary = {"points": int(len(index)), "centre": ((p.min(0) + p.max(0)) / 2.0).round(4).tolist(),
                "height_m": round(top, 3), "width_m": round(width, 3)}

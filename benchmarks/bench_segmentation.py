@@ -128,7 +128,6 @@ def _room(room_dir: Path, room: int, seed: int, changes: str, share: float, puri
     segmented = cands.segmented
     if len(segmented.cloud.points) != len(labels):
         raise SystemExit(f"{room_dir}: labels.npy has {len(labels)} labels for {len(segmented.cloud.points)} points")
-    held = []
     def objects_held(index: np.ndarray) -> dict[int, int]:
         values, counts = np.unique(labels[segmented.index[index]], return_counts=True)
         return dict(zip(values.tolist(), counts.tolist(), strict=True))

@@ -610,12 +610,12 @@ def test_without_a_class_two_pieces_apart_stay_candidates_beside_their_join(gap,
         assert sorted(both[0].parts) == sorted(heads + feet)
 
 
-@pytest.mark.parametrize(("underside", "scene", "candidate"), [
+@pytest.mark.parametrize(("underside", "floating_top", "candidate"), [
     (0.72, True, True),  # a table's top over a pedestal the scan did not see
     (0.45, True, False),  # a piece of a sofa's seat or a bed's mattress
     (0.72, False, False),  # off (the default), every cluster is as tall as it is thick
 ])
-def test_a_top_floating_at_table_height_is_a_candidate_with_floating_tops(underside, scene, candidate):
+def test_a_top_floating_at_table_height_is_a_candidate_with_floating_tops(underside, floating_top, candidate):
     """A slab 4 cm thick, 1 m across, its underside ``underside`` above the floor, nothing seen
     under it, a chair 2 m away: a whole scene's segmentation with ``floating_top_m`` 0.6 takes
     the slab for a candidate where it floats 0.6 m or more above the floor (as tall as its top),
@@ -628,7 +628,7 @@ def test_a_top_floating_at_table_height_is_a_candidate_with_floating_tops(unders
     chair.apply_translation([2.0, 0.0, 0.0])
     slab_points = _surface_points(top, int(6000 * top.area), 0)
     points = np.concatenate([slab_points, _surface_points(chair, int(6000 * chair.area), 1)])
-    settings = replace(SCENE_SEGMENT, floating_top_m=0.6) if scene else SegmentSettings()
+    settings = replace(SCENE_SEGMENT, floating_top_m=0.6) if floating_top else SegmentSettings()
     result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0),
                              settings=settings)
     (slab,) = [c for c in result.candidates

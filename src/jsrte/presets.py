@@ -151,6 +151,19 @@ class FitSettings:
     below_floor_depth: tuple[float, float] = (1.5, 4.0)
     """Their depth under the floor, in units of the loss's clamp (uniform in this range). Each
     bounds the SDF from below (one-sided loss), so samples nearer than the clamp count too."""
+    floor_contact: float = 0.0
+    """Beyond the paper: weight w of a penalty w·max(0, g − τ) on the gap g between the fitted
+    shape and a known floor under it (the least SDF on a grid of the floor plane about the object,
+    fit.floor.FloorContact), plus w times the depth it sinks through the floor: furniture stands
+    on the floor, and a table whose legs the scan missed otherwise ends in the air. The Adam fit
+    (``solver`` "adam") only; 0: none."""
+    floor_contact_points: int = 2048
+    """About this many points of that grid (its half-diagonal, the least τ, shrinks as they grow)."""
+    floor_contact_tolerance: float = 1.0
+    """τ in units of the loss's clamp (at least the grid's half-diagonal): a shape whose lowest
+    point floats less than this above the floor costs nothing (a model's thin legs may end a few
+    centimetres short of the floor on a fit that is right); a shape sunk through the floor costs
+    the depth it sinks, up to half a clamp (within the distances a model learned)."""
     size_margin: float | None = None
     """Beyond the paper: where the model knows its class's sizes (``jsrte.model.sizes``: its
     training shapes', in metres), the scale s stays within them widened by this factor each way
@@ -283,10 +296,14 @@ class FitSettings:
     pruning)."""
 
     def __post_init__(self) -> None:
-        """Every mode field holds one of its values (a typo is an error here, not a silent default)."""
+        """Every mode field holds one of its values (a typo is an error here, not a silent default),
+        and the floor contact is asked only of the solver that has it."""
         for name, values in MODES.items():
             if getattr(self, name) not in values:
                 raise ValueError(f"FitSettings.{name} must be one of {', '.join(values)}, got {getattr(self, name)!r}")
+        if self.floor_contact and self.solver != "adam":
+            raise ValueError("FitSettings.floor_contact acts on the Adam fit only: with solver "
+                             f"{self.solver!r} it must be 0, got {self.floor_contact!r}")
 
     def without_pruning(self) -> FitSettings:
         """The same settings with every hypothesis run to the end (both prunings off)."""

@@ -1,5 +1,6 @@
 """The JSRTE optimization (paper eq. 6): min over s, ψ, ρ, θ, t, z of
-Σ |s·f(R⁻¹(x − t)/s, z) − φ| + λ‖z‖², for H hypotheses at once, by Adam.
+Σ |s·f(R⁻¹(x − t)/s, z) − φ| + λ‖z‖², for H hypotheses at once, by Adam (beyond the paper,
+plus the floor-contact penalty of ``FitSettings.floor_contact``: fit.floor).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import torch
 from tqdm import tqdm
 
 from jsrte.fit.adam import Adam
+from jsrte.fit.floor import FloorContact, floor_contact
 from jsrte.fit.params import HypothesisBatch, Init, LatentPrior
 from jsrte.fit.query import SdfQuery
 from jsrte.model.decoder import Decoder, decoder_device, uses_bfloat16
@@ -89,13 +91,7 @@ def hypothesis_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Te
     set, φ only bounds the true SDF from below: the term is max(0, clamp(φ) − clamp(s f)).
     ``bfloat16``: the decoder's matrix products in bfloat16 (``FitSettings.decoder_dtype``).
     """
-    h, k = len(batch), points.shape[0]
-    canonical = batch.to_canonical(points).to(torch.float32)  # (H, K, 3)
-    codes = batch.latent.to(torch.float32)[:, None, :].expand(h, k, -1)
-    with torch.autocast(canonical.device.type, dtype=torch.bfloat16, enabled=bfloat16):
-        pred = decoder(canonical.reshape(-1, 3), codes.reshape(h * k, -1))
-    pred = pred.to(torch.float32).reshape(h, k)
-    pred = batch.scale.to(torch.float32)[:, None] * pred
+    pred = batch.sdf(decoder, points, bfloat16=bfloat16)
     target = sdf.to(torch.float32)[None, :]
     if clamp is not None:
         pred, target = pred.clamp(-clamp, clamp), target.clamp(-clamp, clamp)
@@ -142,6 +138,9 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
     points = torch.as_tensor(query.points, dtype=torch.float64, device=device)
     sdf = torch.as_tensor(query.sdf, dtype=torch.float64, device=device)
     lower = None if query.lower_bound is None else torch.as_tensor(query.lower_bound, device=device)
+    reach = clamp if clamp is not None else 0.1 * s0  # the floor's distances in units of the clamp
+    contact = floor_contact(query, settings.floor_contact, settings.floor_contact_points, device=device,
+                            depth=0.5 * reach, tolerance=settings.floor_contact_tolerance * reach)
     survivors = np.arange(len(inits))
     pruned: dict[int, float] = {}
     bfloat16 = uses_bfloat16(settings.decoder_dtype, device)
@@ -160,7 +159,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
             ranking = recent
             if finisher is not None:  # the model judges what its distilled decoder moved
                 ranking = _fixed_sample_losses(finisher, batch, points, sdf, lower, settings.judge_samples, clamp,
-                                               penalty, scale_prior, generator)
+                                               penalty, scale_prior, generator, contact)
                 judged = len(batch) * min(settings.judge_samples, len(sdf))
                 evaluations, parts["model"] = evaluations + judged, parts["model"] + judged
             keep = torch.argsort(ranking.cpu())[: stages[it]]
@@ -176,6 +175,8 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         losses = hypothesis_losses(active, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
                                    lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior,
                                    bfloat16=bfloat16)
+        if contact is not None:
+            losses = losses + contact.penalty(active, batch, it, bfloat16=bfloat16)
         optimizer.zero_grad()
         losses.sum().backward()
         optimizer.step()
@@ -185,7 +186,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
         evaluations += len(batch) * len(idx)
         parts["model" if active is finisher else "distilled"] += len(batch) * len(idx)
     final = _fixed_sample_losses(finisher or decoder, batch, points, sdf, lower, settings.eval_samples, clamp,
-                                 penalty, scale_prior, generator).cpu().numpy()
+                                 penalty, scale_prior, generator, contact).cpu().numpy()
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
     parts["model"] += len(batch) * min(settings.eval_samples, len(sdf))
     return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
@@ -256,12 +257,16 @@ def _adam(batch: HypothesisBatch, lr: float) -> Adam:
 
 def _fixed_sample_losses(decoder: Decoder, batch: HypothesisBatch, points: torch.Tensor, sdf: torch.Tensor,
                          lower: torch.Tensor | None, n: int, clamp: float | None, penalty: float,
-                         scale_prior: tuple[float, float], generator: torch.Generator) -> torch.Tensor:
+                         scale_prior: tuple[float, float], generator: torch.Generator,
+                         contact: FloorContact | None = None) -> torch.Tensor:
     """(H,) float64 objectives of every hypothesis by ``decoder`` (forward passes only, float32) on
-    ``n`` samples of the query drawn once: the same samples for all, so the losses compare."""
+    ``n`` samples of the query drawn once: the same samples for all, so the losses compare; with
+    ``contact``, its penalty over the whole floor grid added."""
     n = min(n, len(sdf))
     idx = torch.randperm(len(sdf), generator=generator)[:n].to(sdf.device)
     with torch.no_grad():
         losses = hypothesis_losses(decoder, batch, points[idx], sdf[idx], clamp=clamp, latent_penalty=penalty,
                                    lower_bound=None if lower is None else lower[idx], scale_prior=scale_prior)
+    if contact is not None:
+        losses = losses + contact.final(decoder, batch)
     return losses.double()

@@ -131,6 +131,16 @@ class HypothesisBatch(torch.nn.Module):
         centred = points - self.translation[:, None, :]
         return centred @ self.rotation() / self.scale[:, None, None]
 
+    def sdf(self, decoder: torch.nn.Module, points: torch.Tensor, *, bfloat16: bool = False) -> torch.Tensor:
+        """s·f(R⁻¹(x − t)/s, z) (H, K) float32, scan units, of every hypothesis at scan points
+        ``points`` (K, 3) (differentiable); ``bfloat16``: the decoder's matrix products in bfloat16."""
+        h, k = len(self), points.shape[0]
+        canonical = self.to_canonical(points).to(torch.float32)  # (H, K, 3)
+        codes = self.latent.to(torch.float32)[:, None, :].expand(h, k, -1)
+        with torch.autocast(canonical.device.type, dtype=torch.bfloat16, enabled=bfloat16):
+            pred = decoder(canonical.reshape(-1, 3), codes.reshape(h * k, -1))
+        return self.scale.to(torch.float32)[:, None] * pred.to(torch.float32).reshape(h, k)
+
     def clamp_scale(self, lo: float, hi: float) -> None:
         """Project s back into [lo, hi] (the paper keeps s in [0.01, 10])."""
         with torch.no_grad():

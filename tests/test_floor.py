@@ -171,6 +171,10 @@ def test_a_table_seen_from_above_reaches_the_floor_only_with_the_contact_penalty
     result = optimize(LegLengthTableDecoder(), query, [Init(1.0, 0.0, 0.0, 0.0, np.zeros(3), latent=np.zeros(2))],
                       settings, fixed=fixed, generator=torch.Generator().manual_seed(0))
     reach = float(result.batch.latent[0, 0].detach())
+    data_evaluations = 150 * 2000 + min(settings.eval_samples, len(query.sdf))
+    grid = len(floor_grid(query, 4000)[0])  # the contact's own evaluations are counted too
+    assert result.evaluations >= data_evaluations + (2 * grid if weight else 0)
+    assert result.evaluations == data_evaluations or weight
     if weight:
         tolerance = floor_grid(query, 4000)[1] / np.sqrt(2)
         assert 0.3 - tolerance - 0.02 <= reach <= 0.3 + 0.01

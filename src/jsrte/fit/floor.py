@@ -106,6 +106,8 @@ class FloorContact:
         self.keep = keep
         self.refresh = refresh
         self.active: torch.Tensor | None = None
+        self.evaluations = 0
+        """Decoder evaluations spent so far (hypotheses times points)."""
 
     def penalty(self, decoder: torch.nn.Module, batch: HypothesisBatch, iteration: int, *,
                 bfloat16: bool = False) -> torch.Tensor:
@@ -114,14 +116,17 @@ class FloorContact:
         if self.active is None or iteration % self.refresh == 0:
             with torch.no_grad():
                 sdf = batch.sdf(decoder, self.points, bfloat16=bfloat16)
+            self.evaluations += sdf.numel()
             lowest = torch.topk(sdf, min(self.keep, sdf.shape[1]), dim=1, largest=False).indices
             self.active = torch.unique(lowest)
         n = len(self.active)
         sdf = batch.sdf(decoder, torch.cat([self.points[self.active], self.below[self.active]]), bfloat16=bfloat16)
+        self.evaluations += sdf.numel()
         return self._of(sdf[:, :n], sdf[:, n:])
 
     def final(self, decoder: torch.nn.Module, batch: HypothesisBatch) -> torch.Tensor:
         """(H,) the penalty over the whole grid (forward passes, float32)."""
+        self.evaluations += 2 * len(batch) * len(self.points)
         with torch.no_grad():
             return self._of(batch.sdf(decoder, self.points), batch.sdf(decoder, self.below))
 

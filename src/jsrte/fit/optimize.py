@@ -189,6 +189,7 @@ def optimize(decoder: Decoder, query: SdfQuery, inits: list[Init], settings: Fit
                                  penalty, scale_prior, generator, contact).cpu().numpy()
     evaluations += len(batch) * min(settings.eval_samples, len(sdf))
     parts["model"] += len(batch) * min(settings.eval_samples, len(sdf))
+    evaluations += 0 if contact is None else contact.evaluations
     return Optimized(batch, final, survivors, pruned, settings.iterations, evaluations,
                      time.perf_counter() - start, evaluation_parts=parts if finisher is not None else {})
 

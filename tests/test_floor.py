@@ -188,3 +188,29 @@ def test_the_contact_penalty_is_refused_where_the_solver_has_none():
     with pytest.raises(ValueError, match="Adam fit only"):
         FitSettings(solver="gauss-newton", floor_contact=0.3)
     assert FitSettings(solver="gauss-newton").floor_contact == 0.0
+
+
+@pytest.mark.parametrize("category, classes, kept", [("table", ("table",), True), ("chair", ("table",), False),
+                                                     (None, ("table",), False), ("chair", None, True)])
+def test_the_contact_acts_only_on_the_classes_it_names(category, classes, kept):
+    from jsrte.fit.solve import for_class
+    from jsrte.model.checkpoint import DeepSdfModel
+    from jsrte.presets import FitSettings
+
+    meta = {} if category is None else {"category": category}
+    model = DeepSdfModel(decoder=LegLengthTableDecoder(), codes=torch.zeros(3, 2), meta=meta)
+    settings = FitSettings(floor_contact=0.3, floor_contact_classes=classes)
+    assert for_class(model, settings).floor_contact == (0.3 if kept else 0.0)
+    assert for_class(model, settings).floor_contact_classes == classes
+
+
+def test_a_scene_holds_its_tables_to_the_floor_and_nothing_else():
+    from jsrte.fit.solve import for_class
+    from jsrte.model.checkpoint import DeepSdfModel
+    from jsrte.presets import default_preset, get_preset
+
+    fit = get_preset(default_preset(scene=True, class_unknown=True)).fit
+    weights = {name: for_class(DeepSdfModel(LegLengthTableDecoder(), torch.zeros(3, 2), {"category": name}),
+                                fit).floor_contact for name in ("chair", "table", "sofa", "bed")}
+    assert weights == {"chair": 0.0, "table": 0.3, "sofa": 0.0, "bed": 0.0}
+    assert get_preset(default_preset(class_unknown=True)).fit.floor_contact == 0.0

@@ -157,6 +157,9 @@ class FitSettings:
     fit.floor.FloorContact), plus w times the depth it sinks through the floor: furniture stands
     on the floor, and a table whose legs the scan missed otherwise ends in the air. The Adam fit
     (``solver`` "adam") only; 0: none."""
+    floor_contact_classes: tuple[str, ...] | None = None
+    """The classes (a model's ``category``) whose fits the floor contact acts on; None: every
+    class. A model of another class, or one that names none, is fitted without it."""
     floor_contact_points: int = 2048
     """About this many points of that grid (its half-diagonal, the least τ, shrinks as they grow)."""
     floor_contact_tolerance: float = 1.0
@@ -394,6 +397,12 @@ EXPRESS_SCALES = Preset(name="express-scales", scan_sdf=FAST.scan_sdf, fit=repla
 differs from its height's by more than 10%, as ``fast-scales`` does for ``fast``: for tables,
 sofas and beds (docs/speed.md, "A distilled decoder")."""
 
+FAST_SCALES_FLOOR = Preset(name="fast-scales-floor", scan_sdf=FAST.scan_sdf,
+                           fit=replace(FAST_SCALES.fit, floor_contact=0.3, floor_contact_classes=("table",)))
+"""``fast-scales``, each table's fit held to the floor under it (``FitSettings.floor_contact``
+0.3, tables only): a table seen mostly by its top otherwise ends with its legs in the air. The
+default of whole scenes (docs/presets.md, "Tables held to the floor")."""
+
 SIZED = Preset(name="sized", scan_sdf=FAST.scan_sdf, fit=replace(FAST_SCALES.fit, size_margin=1.2))
 """``fast-scales``, each class held to its own sizes (those of its training shapes, from 1/1.2 of
 the smallest to 1.2 times the largest; ``FitSettings.size_margin``): a table model cannot
@@ -415,14 +424,16 @@ PRESETS: dict[str, Preset] = {
     "fast-distilled": FAST_DISTILLED,
     "fast-scales-distilled": FAST_SCALES_DISTILLED,
     "fast-scales": FAST_SCALES,
+    "fast-scales-floor": FAST_SCALES_FLOOR,
     "sized": SIZED,
     "smoke": SMOKE,
 }
 DEFAULT_PRESET = "fast"
-SCENE_PRESET = "fast-scales"
+SCENE_PRESET = "fast-scales-floor"
 """The default of a whole scene (``jsrte fit --scene``, ``fit_scene``, ``jsrte experiment scenes``):
 a room's beds, sofas and tables vary in proportions, and each full fit also starts at its
-points' scale (docs/clutter.md, "Whole scenes")."""
+points' scale; a room's tables are often seen by their tops, their legs hidden by what stands
+around them, and each table's fit is held to the floor (docs/clutter.md, "Whole scenes")."""
 CLASS_PRESET = "fast-scales"
 """The default for one object of unknown class (``--model auto`` or several models), as for a
 whole scene: the class's shape decides its proportions, so each full fit also starts at its

@@ -55,6 +55,15 @@ def sized(model: DeepSdfModel, settings: FitSettings) -> FitSettings:
     return replace(settings, scale_min=max(settings.scale_min, lo), scale_max=min(settings.scale_max, hi))
 
 
+def for_class(model: DeepSdfModel, settings: FitSettings) -> FitSettings:
+    """``settings`` without the floor contact where ``settings.floor_contact_classes`` names
+    classes and ``model``'s ``category`` is none of them."""
+    classes = settings.floor_contact_classes
+    if not settings.floor_contact or classes is None or model.meta.get("category") in classes:
+        return settings
+    return replace(settings, floor_contact=0.0)
+
+
 def latent_prior(model: DeepSdfModel, settings: FitSettings) -> LatentPrior | None:
     """The training codes' Gaussian when ``settings.latent_space`` is "whitened", else None."""
     if settings.latent_space == "raw":
@@ -106,7 +115,7 @@ def fit_query(model: DeepSdfModel, query: SdfQuery, settings: FitSettings, *,
     flushed to zero on the calling thread while it runs (``jsrte.model.decoder.denormals_flushed``).
     """
     started = time.perf_counter()
-    settings = sized(model, settings)
+    settings = for_class(model, sized(model, settings))
     if fixed is None:
         fixed = AXIS_PARAMETERS if settings.hold_axis and query.up is not None else frozenset()
     decoder = model.decoder

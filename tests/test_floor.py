@@ -204,13 +204,14 @@ def test_the_contact_acts_only_on_the_classes_it_names(category, classes, kept):
     assert for_class(model, settings).floor_contact_classes == classes
 
 
-def test_a_scene_holds_its_tables_to_the_floor_and_nothing_else():
+def test_fast_scales_floor_holds_tables_to_the_floor_and_nothing_else():
     from jsrte.fit.solve import for_class
     from jsrte.model.checkpoint import DeepSdfModel
     from jsrte.presets import default_preset, get_preset
 
-    fit = get_preset(default_preset(scene=True, class_unknown=True)).fit
+    fit = get_preset("fast-scales-floor").fit
     weights = {name: for_class(DeepSdfModel(LegLengthTableDecoder(), torch.zeros(3, 2), {"category": name}),
                                 fit).floor_contact for name in ("chair", "table", "sofa", "bed")}
     assert weights == {"chair": 0.0, "table": 0.3, "sofa": 0.0, "bed": 0.0}
-    assert get_preset(default_preset(class_unknown=True)).fit.floor_contact == 0.0
+    for scene in (False, True):
+        assert get_preset(default_preset(scene=scene, class_unknown=True)).fit.floor_contact == 0.0

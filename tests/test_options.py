@@ -94,4 +94,4 @@ def test_the_default_preset_follows_what_the_fit_must_find():
     assert [names_several_models(m) for m in ("auto", "chair,table", "chair", None, ["a", "b"], ["a"])] == \
         [True, True, False, False, True, False]
     assert default_preset() == "fast" and default_preset(class_unknown=True) == "fast-scales"
-    assert default_preset(scene=True, class_unknown=True) == "fast-scales-floor"
+    assert default_preset(scene=True, class_unknown=True) == "fast-scales"

@@ -400,8 +400,9 @@ sofas and beds (docs/speed.md, "A distilled decoder")."""
 FAST_SCALES_FLOOR = Preset(name="fast-scales-floor", scan_sdf=FAST.scan_sdf,
                            fit=replace(FAST_SCALES.fit, floor_contact=0.3, floor_contact_classes=("table",)))
 """``fast-scales``, each table's fit held to the floor under it (``FitSettings.floor_contact``
-0.3, tables only): a table seen mostly by its top otherwise ends with its legs in the air. The
-default of whole scenes (docs/presets.md, "Tables held to the floor")."""
+0.3, tables only): a table seen mostly by its top otherwise ends with its legs in the air. Not
+the default: in rooms it drops tables that grow to reach the floor (docs/presets.md, "Tables
+held to the floor")."""
 
 SIZED = Preset(name="sized", scan_sdf=FAST.scan_sdf, fit=replace(FAST_SCALES.fit, size_margin=1.2))
 """``fast-scales``, each class held to its own sizes (those of its training shapes, from 1/1.2 of
@@ -429,11 +430,10 @@ PRESETS: dict[str, Preset] = {
     "smoke": SMOKE,
 }
 DEFAULT_PRESET = "fast"
-SCENE_PRESET = "fast-scales-floor"
+SCENE_PRESET = "fast-scales"
 """The default of a whole scene (``jsrte fit --scene``, ``fit_scene``, ``jsrte experiment scenes``):
 a room's beds, sofas and tables vary in proportions, and each full fit also starts at its
-points' scale; a room's tables are often seen by their tops, their legs hidden by what stands
-around them, and each table's fit is held to the floor (docs/clutter.md, "Whole scenes")."""
+points' scale (docs/clutter.md, "Whole scenes")."""
 CLASS_PRESET = "fast-scales"
 """The default for one object of unknown class (``--model auto`` or several models), as for a
 whole scene: the class's shape decides its proportions, so each full fit also starts at its

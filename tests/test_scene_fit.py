@@ -885,6 +885,64 @@ def test_a_table_whose_top_was_not_seen_is_fitted_in_full_with_the_close_classes
     assert better.model == "table" and better.status == "unexplained" and len(fitted) == 6
 
 
+def test_a_shape_laid_over_a_scrap_is_fitted_in_full_with_the_close_classes(monkeypatch):
+    """Points on a sphere of radius 0.5 m. The "table"'s full fit is a mesh of five unit spheres,
+    one 2 cm outside the points and four far off: its points cover none of it, so the checks of
+    ``_check_objects`` leave it unexplained as a shape laid over a scrap. The sofa, which the
+    screen left close (0.03 against 0.01), is fitted in full; its sphere lies on the points, it
+    passes every check and is kept, its class record naming the check. With no other class close
+    (the chair at 0.2), nothing is fitted and the object stays unexplained."""
+    import importlib
+    from types import SimpleNamespace
+
+    import torch
+    import trimesh
+
+    from jsrte.fit.scene import SCENE_SCREEN, SceneObject, _check_objects
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.options import FitOptions
+
+    class UnitSphere(torch.nn.Module):
+        def forward(self, x: torch.Tensor, latent: torch.Tensor) -> torch.Tensor:
+            return x.norm(dim=-1, keepdim=True) - 1.0
+
+    models = {name: SimpleNamespace(decoder=UnitSphere(), meta={"name": name}) for name in ("table", "sofa", "chair")}
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    far_off = [sphere.copy().apply_translation([4.0 * k, 0, 0]) for k in (1, 2, 3, 4)]
+    spheres = trimesh.util.concatenate([sphere, *far_off])
+    centre = np.array([0.0, 0.5, 0.0])
+    points = Sim3(0.5, np.eye(3), centre).apply(sphere.sample(20_000, seed=3))
+    query = SimpleNamespace(surface=points, n_refine_only=0)
+    fitted = []
+
+    def fit_at(r: float, mesh: trimesh.Trimesh, class_choice: dict) -> SimpleNamespace:
+        return SimpleNamespace(quality={"inlier_share": 0.9}, transform=Sim3(r, np.eye(3), centre), flag="ok",
+                               latent=np.zeros(1), mesh_canonical=mesh, loss=0.004,
+                               info={"preset": "fast-scales", "class": class_choice})
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False, settings=None):
+        fitted.append(class_choice["chosen"])
+        return fit_at(0.5, sphere, class_choice)
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit"), "fit_recorded", fit_recorded)
+
+    def table_over_a_scrap(scores: dict) -> SceneObject:
+        choice = {"chosen": "table", "scores": scores}
+        return SceneObject(0, 0, points, model="table", result=fit_at(0.52, spheres, choice),
+                           choice=SimpleNamespace(query=query), class_choice=choice)
+
+    sofa = table_over_a_scrap({"table": 0.01, "sofa": 0.03, "chair": 0.2})
+    _check_objects([sofa], models, FitOptions(preset="fast-scales"), 1, SCENE_SCREEN)
+    assert fitted == ["sofa"] and sofa.model == "sofa" and sofa.status == "ok" and sofa.result.transform.s == 0.5
+    record = sofa.result.info["class"]
+    assert record["chosen_by"] == "coverage" and record["first_class"] == "table"
+    assert set(record["in_full_scores"]) == {"table", "sofa"} and sofa.result.quality["surface_coverage"] > 0.9
+    scrap = table_over_a_scrap({"table": 0.01, "chair": 0.2})
+    _check_objects([scrap], models, FitOptions(preset="fast-scales"), 1, SCENE_SCREEN)
+    assert fitted == ["sofa"] and scrap.model == "table" and scrap.status == "unexplained"
+    assert scrap.unexplained_by == "coverage" and scrap.result.quality["surface_coverage"] < 0.05
+
+
 def test_a_table_whose_top_was_not_seen_and_no_other_class_explains_is_searched_again(monkeypatch):
     """Points on a sphere of radius 0.5 m, seen whole. The "table"'s full fit put its sphere 5 cm
     above them: the points cover a quarter of its surface but none of its top, and the screen

@@ -20,10 +20,11 @@ place look alike before a fit. Then:
    points barely cover (a table: its top) is no object (``unexplained``); one that ends outside
    its class's sizes is fitted with the class the screen ranked next whose sizes hold it
    (:func:`_fit_another_class`), kept where that fit holds; a table whose top the scan did not
-   see is fitted in full with every other class the screen left close, and the one whose fit
-   explains its points far better than the table's is kept where it holds
-   (:func:`_fit_other_classes_in_full`); one no other class explains is fitted again as a table
-   by :data:`ESCAPE_PRESET`, kept where that fit holds and is flagged ok (:func:`_search_again`);
+   see, and a shape its points barely cover, are fitted in full with every other class the
+   screen left close, and the one whose fit explains its points far better than the rejected
+   one's is kept where it holds (:func:`_fit_other_classes_in_full`); a table no other class
+   explains is fitted again as a table by :data:`ESCAPE_PRESET`, kept where that fit holds and
+   is flagged ok (:func:`_search_again`);
 5. of two objects whose fitted shapes share much of their volume (two fits of one object, from
    two of its pieces), the one whose fit lies on fewer of the points of both is no object
    (:func:`_drop_second_fits`); a table found by that second search gives way to any object
@@ -767,10 +768,12 @@ def _fit_another_class(obj: SceneObject, models: dict, options: FitOptions) -> N
         return
 
 
-IN_FULL_AFTER = ("top",)
+IN_FULL_AFTER = ("top", "coverage")
 """The checks (``SceneObject.unexplained_by``) after which an object is fitted in full with every
 other class the screen left close (:func:`_fit_other_classes_in_full`): a table whose top the scan
-did not see is most often a sofa or a bed the table model explained at the screen."""
+did not see is most often a sofa or a bed the table model explained at the screen; a shape laid
+over a scrap is at times a whole object of another class, which that class's model fits closely
+(on the tuning rooms 100-119 of seed 0: a sofa fitted as a table, a bed's end as a sofa)."""
 IN_FULL_RATIO = 0.63
 """Another class's full fit replaces a rejected one only where its screen score on the object's
 points is at most this times the rejected fit's. On the tuning rooms (100-129 of seed 0), of the
@@ -787,8 +790,9 @@ def _fit_other_classes_in_full(obj: SceneObject, models: dict, options: FitOptio
     surface's distance to them and its violation of their free space); the best other fit is
     kept where it scores at most :data:`IN_FULL_RATIO` times the rejected fit and passes every
     check (``ok`` after :func:`_flag_scene_object` and :func:`_mark_unexplained`). Its class
-    record says ``chosen_by``: the check ("top"), with the first class. Else the object stays as
-    it was. Either way its class record holds every compared fit's ``in_full_scores``."""
+    record says ``chosen_by``: the check ("top" or "coverage"), with the first class. Else the
+    object stays as it was. Either way its class record holds every compared fit's
+    ``in_full_scores``."""
     from jsrte.fit import fit_recorded
     from jsrte.fit.screen import screen_score, screen_terms
 

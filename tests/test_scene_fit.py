@@ -813,6 +813,75 @@ def test_points_a_found_objects_fit_leaves_unexplained_are_fitted_as_an_object_o
     assert from_box.all() and from_box.sum() > 0.95 * len(on_box)
 
 
+def test_the_parts_of_a_found_whole_its_fit_leaves_over_are_fitted_as_objects_of_their_own(monkeypatch):
+    """A ball of radius 0.8 m fitted as a found object to a whole (candidate 0) that also holds
+    two boxes beside it, as a chair segmented with the bed it stands against. The whole's parts:
+    the ball with box A (1, itself split into the ball, 3, and box A, 4) and box B (2). The ball's
+    fit lies on most of part 1's points, so part 1 is searched: of its parts, box A lies off the
+    fit; box B lies off it too. Both are fitted as objects of their own, numbered after the
+    others, ``leftover_of`` the whole; the ball's part is not. A part already an object of the
+    scene is not fitted again. Where a part left over is found, the whole's other parts are
+    fitted too, and the whole gives way to them where they are all found."""
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from jsrte.fit import scene as scene_module
+    from jsrte.fit.scene import SceneObject, _fit_parts_left_over
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.options import FitOptions
+    from jsrte.scans.segment import Candidate
+
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.8).apply_translation([0.0, 0.8, 0.0])
+    box_a = trimesh.creation.box([0.4, 0.5, 0.4]).apply_translation([1.3, 0.25, 0.0])
+    box_b = trimesh.creation.box([0.4, 0.5, 0.4]).apply_translation([-1.3, 0.25, 0.0])
+    pieces = [trimesh.sample.sample_surface(m, 3000, seed=i)[0] for i, m in enumerate((ball, box_a, box_b))]
+    points = np.concatenate(pieces)
+    on_ball, on_a, on_b = np.split(np.arange(len(points)), [3000, 6000])
+    candidates = [Candidate(index=np.arange(len(points)), parts=[1, 2]),
+                  Candidate(index=np.concatenate([on_ball, on_a]), parent=0, parts=[3, 4]),
+                  Candidate(index=on_b, parent=0), Candidate(index=on_ball, parent=1), Candidate(index=on_a, parent=1)]
+    segmented = SimpleNamespace(cloud=SimpleNamespace(points=points), index=np.arange(len(points)))
+    cands = SimpleNamespace(segmented=segmented, segmentation=SimpleNamespace(candidates=candidates))
+    fitted = SimpleNamespace(quality={"inlier_share": 0.6}, transform=Sim3(1.0, np.eye(3), np.array([0.0, 0.8, 0.0])),
+                             latent=np.zeros(4), flag="ok")
+    whole = SceneObject(4, 0, points, model="ball", result=fitted)
+    fits = []
+
+    def failed_fit(obj: SceneObject, *args: object) -> None:
+        fits.append(obj)
+        obj.status, obj.reason = "failed", "not fitted in this test"
+
+    monkeypatch.setattr(scene_module, "_fit_object", failed_fit)
+    models = {"ball": SimpleNamespace(decoder=BallDecoder())}
+    new = _fit_parts_left_over([whole], cands, {}, {}, models, FitOptions(), None, workers=1)
+    assert [(o.index, o.candidate, o.leftover_of) for o in new] == [(5, 4, 4), (6, 2, 4)] and fits == new
+    assert len(new[0].points) == 3000 and np.allclose(new[0].points, pieces[1])
+    assert whole.status == "ok"  # no part left over was found: the whole stays
+    box_b_found = SceneObject(5, 2, pieces[2], status="box")
+    again = _fit_parts_left_over([whole, box_b_found], cands, {}, {}, models, FitOptions(), None, workers=1)
+    assert [o.candidate for o in again] == [4]
+
+    # found where left over, the whole's other part (the ball's, 3) is fitted too: where it is
+    # found, the whole gives way to its parts; where it is not, the whole stays
+    for ball_found in (True, False):
+        def fit(obj: SceneObject, *args: object, found: bool = ball_found) -> None:
+            if obj.candidate == 3 and not found:
+                obj.status, obj.reason = "failed", "not fitted in this test"
+            else:
+                obj.model, obj.result = "ball", SimpleNamespace(quality={}, flag="ok")
+
+        monkeypatch.setattr(scene_module, "_fit_object", fit)
+        for name in ("_check_objects", "_drop_second_fits", "_drop_seen_through"):
+            monkeypatch.setattr(scene_module, name, lambda *args, **kwargs: [])
+        whole.status, whole.unexplained_by, whole.reason = "ok", "", ""
+        new = _fit_parts_left_over([whole], cands, {}, {}, models, FitOptions(), None, workers=1)
+        assert [(o.index, o.candidate, o.leftover_of, o.part_of) for o in new] == [
+            (5, 4, 4, None), (6, 2, 4, None), (7, 3, None, 4)]
+        assert (whole.status, whole.unexplained_by) == (("unexplained", "parts") if ball_found else ("ok", ""))
+        assert whole.reason == ("fitted as its parts (objects 7): its fit left a part over" if ball_found else "")
+
+
 def test_a_table_whose_top_was_not_seen_is_fitted_in_full_with_the_close_classes_and_the_far_better_one_kept(
         monkeypatch):
     """Points on a sphere of radius 0.5 m, fitted as a "table" whose top the scan did not see.

@@ -1122,22 +1122,22 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
     assert fitted == []
 
 
-def test_a_join_of_clusters_apart_judged_two_objects_is_fitted_whole_when_a_part_is_not_found(monkeypatch):
-    """A join of clusters apart judged to hold two objects, one part found only as a doubtful
-    fit and the other not at all (a four-poster's foot and posts), is fitted whole: its fit
+def test_a_whole_judged_two_objects_is_fitted_whole_when_a_part_is_not_found(monkeypatch):
+    """A whole judged to hold two objects, one part found only as a doubtful fit and the other
+    not at all (a four-poster's foot and posts, a bed cut in two), is fitted whole: its fit
     stands in the stead of the part's object when it is flagged ok (or doubtful as that part's
     fit), lies on 0.6 of each part's points and on more points than the part's fit. A whole fit
     that misses one part (two objects), is doubtful where the part's fit is ok, or lies on no
-    more points, leaves the parts as they were; a join whose parts both stand for objects
-    flagged ok is not fitted again."""
+    more points, leaves the parts as they were; a whole whose parts both stand for objects
+    flagged ok, or that is a part of a found object's candidate, is not fitted again."""
     from types import SimpleNamespace
 
     from jsrte.fit import scene as scene_module
-    from jsrte.fit.scene import SceneObject, _covered_json, _fit_wholes_apart
+    from jsrte.fit.scene import SceneObject, _covered_json, _fit_split_wholes
     from jsrte.options import FitOptions
 
-    candidates = [_Candidate(50, parts=[1, 2]), _Candidate(30, parent=0), _Candidate(20, parent=0)]
-    candidates[0].summary["joined_apart"] = True
+    candidates = [_Candidate(50, parts=[1, 2], parent=3), _Candidate(30, parent=0), _Candidate(20, parent=0),
+                  _Candidate(50, parts=[0])]
     candidates[2].index = np.arange(30, 50)
     points = np.c_[np.arange(50.0), np.zeros((50, 2))]  # a point's x is its number
     cands = SimpleNamespace(segmentation=SimpleNamespace(candidates=candidates),
@@ -1157,7 +1157,8 @@ def test_a_join_of_clusters_apart_judged_two_objects_is_fitted_whole_when_a_part
     monkeypatch.setattr(scene_module, "_points_on_fit",
                         lambda obj, pts, models: int(np.isin(pts[:, 0], obj.result.lies_on).sum()))
 
-    def run(lies_on: np.ndarray, flag: str = "ok", part_flag: str = "doubtful", second: bool = False):
+    def run(lies_on: np.ndarray, flag: str = "ok", part_flag: str = "doubtful", second: bool = False,
+            inside: bool = False):
         whole_fit.update(flag=flag, lies_on=lies_on)
         part = SceneObject(4, 1, points[:30], model="m",
                            result=SimpleNamespace(flag=part_flag, quality={}, lies_on=np.arange(30)))
@@ -1165,8 +1166,11 @@ def test_a_join_of_clusters_apart_judged_two_objects_is_fitted_whole_when_a_part
         if second:
             objects.append(SceneObject(5, 2, points[30:], model="m",
                                        result=SimpleNamespace(flag="ok", quality={}, lies_on=np.arange(30, 50))))
+        if inside:
+            objects.append(SceneObject(6, 3, points, model="m",
+                                       result=SimpleNamespace(flag="doubtful", quality={}, lies_on=np.arange(50))))
         covered, turned_down = {0}, {}
-        added = _fit_wholes_apart(objects, cands, _screens({0: 0.03, 1: 0.01, 2: 0.05}), covered, {}, FitOptions(),
+        added = _fit_split_wholes(objects, cands, _screens({0: 0.03, 1: 0.01, 2: 0.05}), covered, {}, FitOptions(),
                                   None, turned_down=turned_down)
         assert not (added and turned_down)
         assert all(why.startswith("fitted whole as a m, turned down: ") for why in turned_down.values())
@@ -1187,3 +1191,5 @@ def test_a_join_of_clusters_apart_judged_two_objects_is_fitted_whole_when_a_part
     fitted.clear()
     added, part, covered = run(np.arange(48), part_flag="ok", second=True)
     assert fitted == [] and added == [] and covered == {0} and run.turned_down == {}
+    added, part, covered = run(np.arange(48), inside=True)
+    assert fitted == [] and added == [] and part.status == "ok" and covered == {0}

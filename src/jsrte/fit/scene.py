@@ -82,7 +82,7 @@ class SceneObject:
         a text: why it could not be)
     unexplained_by : which check left it unexplained: "share", "size", "coverage", "top",
         "second fit", "seen through", "piece" (a piece of a whole fitted in its stead,
-        :func:`_fit_wholes_apart`) or "parts" (a whole fitted as its parts, as its fit left one
+        :func:`_fit_split_wholes`) or "parts" (a whole fitted as its parts, as its fit left one
         over, :func:`_fit_parts_left_over`; "" when it is not)
     box : the evidence that it is a box, its cuboid in it (None: not a box)
     leftover_of : the found object whose fit left its points unexplained (a part of its candidate,
@@ -492,7 +492,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
         objects += _fit_parts_of_dropped(objects, cands, screened, found_boxes, models, options, screen, workers,
                                          views)
         turned_down: dict[int, str] = {}
-        objects += _fit_wholes_apart(objects, cands, screened, covered, models, options, screen, views, turned_down)
+        objects += _fit_split_wholes(objects, cands, screened, covered, models, options, screen, views, turned_down)
         objects += _fit_parts_left_over(objects, cands, screened, found_boxes, models, options, screen, workers, views)
     if leftovers:
         with _timed(timing, "leftovers"):
@@ -515,8 +515,8 @@ PHASES = ("segmentation", "quick fits", "full fits", "checks", "leftovers")
 ``timing_s``) records: models loaded and the scan segmented; every candidate fitted quickly by
 every model and the splits judged; the full fits (contending classes and refits included); the
 coverage, size and second-fit checks with the other-class fits they call for and the fits of
-the parts of dropped wholes (:func:`_fit_parts_of_dropped`) and of the joins apart fitted whole
-(:func:`_fit_wholes_apart`); the leftovers'
+the parts of dropped wholes (:func:`_fit_parts_of_dropped`) and of the split wholes fitted in full
+(:func:`_fit_split_wholes`); the leftovers'
 clustering, quick fits, full fits and checks (:func:`_fit_leftovers`)."""
 
 
@@ -613,7 +613,7 @@ def judge_splits(candidates: list, screened: dict[int, Choice | str], models: di
 def _covered_json(candidates: list, covered: set[int], fitted_whole: dict[int, str] | None = None
                   ) -> list[dict[str, Any]]:
     """scene.json's record of the candidates judged no object of their own; ``fitted_whole``:
-    candidate -> why its fit in full, made by :func:`_fit_wholes_apart`, was turned down."""
+    candidate -> why its fit in full, made by :func:`_fit_split_wholes`, was turned down."""
     out = []
     for k in sorted(covered):
         c = candidates[k]
@@ -1014,19 +1014,20 @@ def _fit_parts_left_over(objects: list[SceneObject], cands: object, screened: di
     return added
 
 
-def _fit_wholes_apart(objects: list[SceneObject], cands: object, screened: dict[int, Choice | str], covered: set[int],
+def _fit_split_wholes(objects: list[SceneObject], cands: object, screened: dict[int, Choice | str], covered: set[int],
                       models: dict, options: FitOptions, screen: ScreenSettings, views: CameraViews | None = None,
                       turned_down: dict[int, str] | None = None) -> list[SceneObject]:
-    """Every join of clusters apart (its summary's ``joined_apart``) that the quick fits judged to
-    hold several objects (in ``covered``), a part of which stands for no object found and flagged
-    ``ok`` (a bed's foot fitted as a bed off its place, its posts as nothing), fitted in full as
-    one object, smallest first, and flagged and checked as the others. It stands in the stead of
-    the objects found among its parts when its fit is found (flagged ``ok``, or no worse than
-    every one of them: ``doubtful`` where they all are), lies on
-    :data:`FOUND_SHARE` of every part's points and on more of its own than those objects' fits
-    lie on theirs, and is no second fit of another object: they become ``unexplained`` (pieces of
-    it) and it leaves ``covered``; else ``turned_down`` (when given) says why, by candidate.
-    Returns the wholes that stand, numbered after ``objects``."""
+    """Every whole the quick fits judged to hold several objects (in ``covered``, with parts) and
+    that lies in no found object's candidate, a part of which stands for no object found and
+    flagged ``ok`` (a bed's foot 36 cm from its head fitted as a bed off its place, its posts as
+    nothing; a bed cut in two, its larger part fitted as a bed far from the true one), fitted in
+    full as one object, smallest first, and flagged and checked as the others. It stands in the
+    stead of the objects found among its parts when its fit is found (flagged ``ok``, or no worse
+    than every one of them: ``doubtful`` where they all are), lies on :data:`FOUND_SHARE` of every
+    part's points and on more of its own than those objects' fits lie on theirs, and is no second
+    fit of another object: they become ``unexplained`` (pieces of it) and it leaves ``covered``;
+    else ``turned_down`` (when given) says why, by candidate. Returns the wholes that stand,
+    numbered after ``objects``."""
     candidates, segmented = cands.segmentation.candidates, cands.segmented
     cloud_points = np.asarray(segmented.cloud.points, float)
     added: list[SceneObject] = []
@@ -1043,8 +1044,11 @@ def _fit_wholes_apart(objects: list[SceneObject], cands: object, screened: dict[
     def stands_for_ok(part: int) -> bool:
         return any(o.result.flag == "ok" for o in found_in(part))
 
+    def inside_found(k: int) -> bool:
+        return any(k in subtree(o.candidate) - {o.candidate} for o in objects if o.status == "ok")
+
     joins = sorted((k for k in covered
-                    if candidates[k].summary.get("joined_apart") and isinstance(screened.get(k), Choice)),
+                    if candidates[k].parts and isinstance(screened.get(k), Choice) and not inside_found(k)),
                    key=lambda k: len(candidates[k].index))
     for k in joins:
         if all(stands_for_ok(p) for p in candidates[k].parts):
@@ -1065,7 +1069,7 @@ def _fit_wholes_apart(objects: list[SceneObject], cands: object, screened: dict[
             continue
         for piece in pieces:
             piece.status, piece.unexplained_by = "unexplained", "piece"
-            piece.reason = f"a piece of object {whole.index}, one {whole.model} fitted to the clusters apart it joins"
+            piece.reason = f"a piece of object {whole.index}, one {whole.model} fitted to the whole it was cut from"
         covered.discard(k)
         added.append(whole)
     return added
@@ -1085,8 +1089,8 @@ def fit_whole_checked(whole: SceneObject, cands: object, models: dict, options: 
 
 def whole_turned_down(whole: SceneObject, parts: list[np.ndarray], on_pieces: int, piece_flags: list[str],
                       models: dict) -> str:
-    """Why the fit of a join of clusters apart does not stand in the stead of the objects found
-    among its parts (:func:`_fit_wholes_apart`; "" when it does): it must be found
+    """Why the fit of a whole judged to hold several objects does not stand in the stead of the
+    objects found among its parts (:func:`_fit_split_wholes`; "" when it does): it must be found
     (``whole.status`` "ok"), flagged ``ok`` or no worse than every such object
     (``piece_flags``), lie on :data:`FOUND_SHARE` of each of ``parts`` (each (m, 3) a part's
     points) and on more of its points than those objects' fits lie on theirs (``on_pieces``, a

@@ -1,17 +1,17 @@
-"""Joins of clusters apart fitted whole: for every join of a room's clusters 10-40 cm apart
-(``joined_apart``) that a scenes run split, a part of which stands for no object found and
-flagged ``ok``, the join's full fit as the scene makes it and whether it stands in the parts'
-stead (``jsrte.fit.scene.whole_turned_down``), with its F@5% against the true object most of its
-points are.
+"""Split wholes fitted in full: for every candidate with parts that a scenes run judged to hold
+several objects and that lies in no found object's candidate, a part of which stands for no
+object found and flagged ``ok``, the whole's full fit as the scene makes it and whether it stands
+in the parts' stead (``jsrte.fit.scene.whole_turned_down``), with its F@5% against the true object
+most of its points are.
 
-``python benchmarks/bench_wholes_apart.py ROOMS_DIR OBJECTS_CSV [--first 100 --rooms 70]``
+``python benchmarks/bench_split_wholes.py ROOMS_DIR OBJECTS_CSV [--first 100 --rooms 70]``
 
 ``ROOMS_DIR`` holds the rooms (``NNN/scan.ply``, ``labels.npy``) of a ``jsrte experiment scenes``
 run of seed 0 and ``OBJECTS_CSV`` its rows, from a build without this step. The scene's
-judgement is not replayed: a join is taken as split where no found object has its point count,
+judgement is not replayed: a whole is taken as split where no found object has its point count,
 and an object found stands for the candidate of its point count. The pieces' fits count
 ``quality_inlier_share`` times their points; the check for a second fit of another object is
-left out. One full fit per join looked at (24-215 s on one thread on the reported rooms).
+left out. One full fit per whole looked at (19-215 s on one thread).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ from jsrte.options import FitOptions
 from jsrte.presets import SCENE_PRESET
 
 ONE_OBJECT = 0.9
-"""A join holds one object when that object has this share of its labelled points."""
+"""A whole holds one object when that object has this share of its labelled points."""
 
 
 def main() -> None:
@@ -70,11 +70,11 @@ def main() -> None:
         if room_dir.is_dir() and rows[room]:
             for verdict in _room(room, room_dir, rows[room], models, options, screen):
                 tally[verdict] += 1
-    print("joins: " + ", ".join(f"{k} {v}" for k, v in sorted(tally.items())))
+    print("wholes: " + ", ".join(f"{k} {v}" for k, v in sorted(tally.items())))
 
 
 def _room(room: int, room_dir: Path, rows: list[dict], models: dict, options: FitOptions, screen: object) -> list[str]:
-    """Print each join of ``room`` the step looks at; return a verdict per join."""
+    """Print each whole of ``room`` the step looks at; return a verdict per whole."""
     labels = np.load(room_dir / "labels.npy")
     settings = options.settings()
     cands = scan_candidates(room_dir / "scan.ply", rng=np.random.default_rng(options.seed), settings=settings.scan_sdf,
@@ -94,11 +94,16 @@ def _room(room: int, room_dir: Path, rows: list[dict], models: dict, options: Fi
     def found_in(k: int) -> list[dict]:
         return [r for q in subtree(k) for r in by_points[len(candidates[q].index)]]
 
+    def inside_found(k: int) -> bool:
+        found = [q for q, c in enumerate(candidates)
+                 if any(r["outcome"] in ("hit", "false positive") for r in by_points[len(c.index)])]
+        return any(k in subtree(q)[1:] for q in found)
+
     drawn = draw_room(room, seed=options.seed)
     truth = {t.index: t for t in true_objects(drawn)}
     verdicts = []
     for k, c in enumerate(candidates):
-        if (not c.summary.get("joined_apart") or by_points[len(c.index)]
+        if (not c.parts or by_points[len(c.index)] or inside_found(k)
                 or any(q in boxes for q in subtree(k))
                 or all(any(r["flag"] == "ok" for r in found_in(p)) for p in c.parts)):
             continue
@@ -117,7 +122,7 @@ def _room(room: int, room_dir: Path, rows: list[dict], models: dict, options: Fi
         top = int(values[np.argmax(counts)])
         one = counts.max() >= ONE_OBJECT * counts.sum()
         verdicts.append(f"{'stands' if stands else 'turned down'} ({'one object' if one else 'several'})")
-        print(f"room {room} join {k} ({len(c.index)} points, {'one object' if one else 'several objects'}): "
+        print(f"room {room} whole {k} ({len(c.index)} points, {'one object' if one else 'several objects'}): "
               f"{whole.model} {whole.status} {'' if whole.result is None else whole.result.flag} "
               f"in {seconds:.0f} s -> {'stands' if stands else 'turned down: ' + why}; "
               f"{_against_truth(whole, drawn, truth[top])}; pieces: "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
 
 import typer
@@ -95,11 +96,12 @@ def _train(out: Path, category: str, shapes: int, data: Path | None, arch: str, 
                 typer.echo(f"{STATE_NAME} is unreadable; resuming from the checkpoint before it", err=True)
             typer.echo(f"resuming at step {trainer.step} of {settings.steps}")
     trainer.run(progress=progress)
+    is_main, steps, minutes = trainer.is_main, trainer.step, trainer.elapsed / 60
+    del trainer  # its DDP wrapper holds the process group: freed now, not at interpreter exit
+    gc.collect()
     shutdown(ctx)
-    if not trainer.is_main:
-        return
-    typer.echo(f"wrote {out / MODEL_NAME} ({training_data.n_shapes} shapes, {trainer.step} steps, "
-               f"{trainer.elapsed / 60:.1f} min)")
+    if is_main:
+        typer.echo(f"wrote {out / MODEL_NAME} ({training_data.n_shapes} shapes, {steps} steps, {minutes:.1f} min)")
 
 
 def _threads_per_process() -> int:

@@ -918,8 +918,7 @@ def _fit_parts_of_dropped(objects: list[SceneObject], cands: object, screened: d
     a box where ``boxes`` holds one), each ``part_of`` that whole; a part of those dropped so in
     turn gives way to its own parts. New objects are numbered after ``objects``; a part's fit
     that is a second fit of an object found before goes."""
-    seg, segmented = cands.segmentation, cands.segmented
-    cloud_points = np.asarray(segmented.cloud.points, float)
+    seg = cands.segmentation
     taken = {o.candidate for o in objects} | {k for k, c in enumerate(seg.candidates) if c.rejected}
     added: list[SceneObject] = []
     dropped = [o for o in objects if o.unexplained_by in PARTS_AFTER]
@@ -927,20 +926,33 @@ def _fit_parts_of_dropped(objects: list[SceneObject], cands: object, screened: d
         first = max(o.index for o in objects + added) + 1
         parts = [(k, whole.index) for whole in dropped for k in seg.candidates[whole.candidate].parts
                  if k not in taken]
-        new = [SceneObject(first + i, k, cloud_points[segmented.index[seg.candidates[k].index]],
-                           choice=screened.get(k), box=boxes.get(k), status=BOX_CLASS if k in boxes else "ok",
-                           part_of=whole, views=views)
-               for i, (k, whole) in enumerate(parts)]
         taken.update(k for k, _ in parts)
-        _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen),
-                    [o for o in new if o.box is None], workers)
-        searched = _check_objects(new, models, options, workers, screen)
+        new, searched = _candidates_fitted(parts, first, "part_of", cands, screened, boxes, models, options, screen,
+                                           workers, views)
         _drop_second_fits(objects + added + new, models, options.seed, newcomers=new)
         _drop_second_fits(new, models, options.seed, newcomers=searched)
         _drop_seen_through(new)
         added += new
         dropped = [o for o in new if o.unexplained_by in PARTS_AFTER]
     return added
+
+
+def _candidates_fitted(parts: list[tuple[int, int]], first: int, link: str, cands: object,
+                       screened: dict[int, Choice | str], boxes: dict[int, BoxEvidence], models: dict,
+                       options: FitOptions, screen: ScreenSettings, workers: int,
+                       views: CameraViews | None = None) -> tuple[list[SceneObject], list[SceneObject]]:
+    """Candidates as objects numbered from ``first``: each of ``parts`` (candidate, the index of
+    the object it belongs to, set as the field ``link``) with its quick fits from ``screened``, a
+    box where ``boxes`` holds one, else fitted (:func:`_fit_object`) and checked
+    (:func:`_check_objects`). Returns the objects and those the checks' search found."""
+    seg, segmented = cands.segmentation, cands.segmented
+    cloud_points = np.asarray(segmented.cloud.points, float)
+    new = [SceneObject(first + i, k, cloud_points[segmented.index[seg.candidates[k].index]], choice=screened.get(k),
+                       box=boxes.get(k), status=BOX_CLASS if k in boxes else "ok", views=views, **{link: owner})
+           for i, (k, owner) in enumerate(parts)]
+    _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), [o for o in new if o.box is None],
+                workers)
+    return new, _check_objects(new, models, options, workers, screen)
 
 
 PART_LEFT_SHARE = 0.25
@@ -986,12 +998,8 @@ def _fit_parts_left_over(objects: list[SceneObject], cands: object, screened: di
     def as_objects(parts: list[tuple[int, SceneObject]], link: str) -> list[SceneObject]:
         """Candidates ``parts`` fitted and checked, each linked (``link``: the field) to its whole."""
         first = max((o.index for o in objects + added), default=-1) + 1
-        new = [SceneObject(first + i, k, points_of(k), choice=screened.get(k), box=boxes.get(k),
-                           status=BOX_CLASS if k in boxes else "ok", views=views, **{link: whole.index})
-               for i, (k, whole) in enumerate(parts)]
-        _in_threads(lambda obj: _fit_object(obj, cands, models, options, screen), [o for o in new if o.box is None],
-                    workers)
-        searched = _check_objects(new, models, options, workers, screen)
+        new, searched = _candidates_fitted([(k, whole.index) for k, whole in parts], first, link, cands, screened,
+                                           boxes, models, options, screen, workers, views)
         _drop_second_fits(new, models, options.seed, newcomers=searched)
         _drop_seen_through(new)
         return new

@@ -94,9 +94,10 @@ def _room(room: int, room_dir: Path, rows: list[dict], models: dict, options: Fi
     def found_in(k: int) -> list[dict]:
         return [r for q in subtree(k) for r in by_points[len(candidates[q].index)]]
 
+    found = [q for q, c in enumerate(candidates)
+             if any(r["outcome"] in ("hit", "false positive") for r in by_points[len(c.index)])]
+
     def inside_found(k: int) -> bool:
-        found = [q for q, c in enumerate(candidates)
-                 if any(r["outcome"] in ("hit", "false positive") for r in by_points[len(c.index)])]
         return any(k in subtree(q)[1:] for q in found)
 
     drawn = draw_room(room, seed=options.seed)

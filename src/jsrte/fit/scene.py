@@ -1055,10 +1055,10 @@ def _fit_split_wholes(objects: list[SceneObject], cands: object, screened: dict[
     def inside_found(k: int) -> bool:
         return any(k in subtree(o.candidate) - {o.candidate} for o in objects if o.status == "ok")
 
-    joins = sorted((k for k in covered
-                    if candidates[k].parts and isinstance(screened.get(k), Choice) and not inside_found(k)),
-                   key=lambda k: len(candidates[k].index))
-    for k in joins:
+    wholes = sorted((k for k in covered
+                     if candidates[k].parts and isinstance(screened.get(k), Choice) and not inside_found(k)),
+                    key=lambda k: len(candidates[k].index))
+    for k in wholes:
         if all(stands_for_ok(p) for p in candidates[k].parts):
             continue
         whole = SceneObject(max(o.index for o in objects + added) + 1, k, points_of(k), choice=screened[k], views=views)

@@ -1193,3 +1193,81 @@ def test_a_whole_judged_two_objects_is_fitted_whole_when_a_part_is_not_found(mon
     assert fitted == [] and added == [] and covered == {0} and run.turned_down == {}
     added, part, covered = run(np.arange(48), inside=True)
     assert fitted == [] and added == [] and part.status == "ok" and covered == {0}
+
+
+
+
+def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_seen_through_less(monkeypatch):
+    """A sofa found 0.3 m beside its points, in front of the wall the camera saw behind them, is
+    seen through on much of its surface: it is fitted again by the escape preset, and the refit on
+    its points, seen through on none of it, replaces it (the first fit recorded), flagged with no
+    bound on its code (the first, whose code lies as far out, is doubtful); a refit as far
+    off is not kept, and a fit seen through on little of it is not fitted again."""
+    import importlib
+    from types import SimpleNamespace
+
+    import trimesh
+
+    from jsrte.fit.scene import (
+        ESCAPE_PRESET,
+        SEEN_THROUGH_REFIT,
+        SceneObject,
+        _flag_scene_object,
+        _refit_seen_through,
+        _seen_through_in_part,
+    )
+    from jsrte.fit.screen import Choice
+    from jsrte.geometry.sim3 import Sim3
+    from jsrte.options import FitOptions
+    from jsrte.scans.views import CameraViews
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    centre, camera = np.array([0.0, 0.5, 0.0]), np.array([0.0, 0.5, 3.0])
+    surface = Sim3(0.5, np.eye(3), centre).apply(sphere.sample(20_000, seed=3))
+    cap = surface[np.einsum("ij,ij->i", surface - centre, camera - surface) > 0]  # what the camera sees of it
+    x, y = np.meshgrid(np.linspace(-2, 2, 200), np.linspace(-0.5, 2, 120))
+    wall = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, -1.5)])
+    readings = np.vstack([cap, wall])
+    views = CameraViews.of_scan(readings, np.zeros(len(readings), int), camera[None])
+    models = {"sofa": SimpleNamespace(meta={"name": "sofa"})}
+
+    def fit_at(offset: float, preset: str) -> SimpleNamespace:
+        return SimpleNamespace(quality={"inlier_share": 0.9, "latent_mahalanobis_ratio": 1.5},
+                               transform=Sim3(0.5, np.eye(3), centre + [offset, 0, 0]), flag="ok",
+                               latent=np.zeros(1), mesh_canonical=sphere, loss=0.004,
+                               info={"preset": preset, "class": {"chosen": "sofa"}})
+
+    refits = []
+
+    def fit_recorded(model, query, options, *, class_choice=None, progress=False, settings=None):
+        refits.append(options.preset)
+        return fit_at(fit_recorded.offset, options.preset)
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit"), "fit_recorded", fit_recorded)
+
+    def found_beside_its_points(offset: float = 0.3) -> SceneObject:
+        obj = SceneObject(0, 0, cap, model="sofa", result=fit_at(offset, "fast-scales"), views=views,
+                          choice=Choice(query=None, model=None, screened=[], classes={"sofa": 0.01}))
+        _flag_scene_object(obj, seed=0)
+        return obj
+
+    options = FitOptions(preset="fast-scales")
+    off = found_beside_its_points()
+    first_through = off.result.quality["seen_through"]
+    assert first_through > 3 * SEEN_THROUGH_REFIT and _seen_through_in_part([off], options) == [off]
+    fit_recorded.offset = 0.0
+    _refit_seen_through(off, models, options)
+    assert refits == [ESCAPE_PRESET] and off.status == "ok" and off.result.transform.t[0] == 0.0
+    assert off.result.quality["seen_through"] < 0.01
+    assert off.result.flag == "ok" and off.result.info["refitted"]["first"]["flag"] == "doubtful"  # no code bound
+    assert off.result.info["refitted"]["after"] == "seen through"
+    assert off.result.info["refitted"]["first"]["seen_through"] == first_through
+
+    fit_recorded.offset = 0.3
+    stays = found_beside_its_points()
+    _refit_seen_through(stays, models, options)
+    assert len(refits) == 2 and stays.result.transform.t[0] == 0.3 and "refitted" not in stays.result.info
+
+    near = found_beside_its_points(0.0)
+    assert near.result.quality["seen_through"] <= SEEN_THROUGH_REFIT and _seen_through_in_part([near], options) == []
+    assert _seen_through_in_part([found_beside_its_points()], FitOptions(preset=ESCAPE_PRESET)) == []

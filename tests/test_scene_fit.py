@@ -1198,11 +1198,12 @@ def test_a_whole_judged_two_objects_is_fitted_whole_when_a_part_is_not_found(mon
 
 
 def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_seen_through_less(monkeypatch):
-    """A sofa found 0.3 m beside its points, in front of the wall the camera saw behind them, is
-    seen through on much of its surface: it is fitted again by the escape preset, and the refit on
-    its points, seen through on none of it, replaces it (the first fit recorded), flagged with no
-    bound on its code (the first, whose code lies as far out, is doubtful); a refit as far
-    off is not kept, and a fit seen through on little of it is not fitted again."""
+    """A sofa found 0.1 m beside its points, in front of the wall the camera saw behind them, is
+    seen through on a fifth of its surface: it is fitted again by the escape preset, and the refit
+    on its points, seen through on none of it and 0.2 radii away, replaces it (the first fit
+    recorded), flagged with no bound on its code (the first, whose code lies as far out, is
+    doubtful); a refit 0.6 radii from a fit 0.3 m off is not kept, nor a refit as far off its points
+    as the first, and a fit seen through on little of it is not fitted again."""
     import importlib
     from types import SimpleNamespace
 
@@ -1232,9 +1233,10 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     models = {"sofa": SimpleNamespace(meta={"name": "sofa"})}
 
     def fit_at(offset: float, preset: str) -> SimpleNamespace:
+        transform = Sim3(0.5, np.eye(3), centre + [offset, 0, 0])
         return SimpleNamespace(quality={"inlier_share": 0.9, "latent_mahalanobis_ratio": 1.5},
-                               transform=Sim3(0.5, np.eye(3), centre + [offset, 0, 0]), flag="ok",
-                               latent=np.zeros(1), mesh_canonical=sphere, loss=0.004,
+                               transform=transform, flag="ok", latent=np.zeros(1), mesh_canonical=sphere,
+                               mesh=trimesh.Trimesh(transform.apply(sphere.vertices), sphere.faces), loss=0.004,
                                info={"preset": preset, "class": {"chosen": "sofa"}})
 
     refits = []
@@ -1252,7 +1254,7 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
         return obj
 
     options = FitOptions(preset="fast-scales")
-    off = found_beside_its_points()
+    off = found_beside_its_points(0.1)
     first_through = off.result.quality["seen_through"]
     assert first_through > 3 * SEEN_THROUGH_REFIT and _seen_through_in_part([off], options) == [off]
     fit_recorded.offset = 0.0
@@ -1262,11 +1264,16 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     assert off.result.flag == "ok" and off.result.info["refitted"]["first"]["flag"] == "doubtful"  # no code bound
     assert off.result.info["refitted"]["after"] == "seen through"
     assert off.result.info["refitted"]["first"]["seen_through"] == first_through
+    assert off.result.info["refitted"]["moved_radii"] == pytest.approx(0.2, abs=0.01)  # 0.1 m of a 0.5 m radius
+
+    far = found_beside_its_points(0.3)  # its refit, on its points, lies 0.6 radii away: something else
+    _refit_seen_through(far, models, options)
+    assert len(refits) == 2 and far.result.transform.t[0] == 0.3 and "refitted" not in far.result.info
 
     fit_recorded.offset = 0.3
     stays = found_beside_its_points()
     _refit_seen_through(stays, models, options)
-    assert len(refits) == 2 and stays.result.transform.t[0] == 0.3 and "refitted" not in stays.result.info
+    assert len(refits) == 3 and stays.result.transform.t[0] == 0.3 and "refitted" not in stays.result.info
 
     near = found_beside_its_points(0.0)
     assert near.result.quality["seen_through"] <= SEEN_THROUGH_REFIT and _seen_through_in_part([near], options) == []

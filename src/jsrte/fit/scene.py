@@ -1264,7 +1264,7 @@ def _centres_apart(first: SceneObject, second: SceneObject) -> float:
     a, b = first.result, second.result
     if first.model != second.model or a.mesh is None or b.mesh is None:
         return float("inf")
-    centres = [_box_centre(np.asarray(r.mesh.vertices)) for r in (a, b)]
+    centres = [_fitted_centre(r) for r in (a, b)]
     return float(np.linalg.norm(np.subtract(*centres)) / max(a.transform.s, b.transform.s))
 
 

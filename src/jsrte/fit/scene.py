@@ -781,25 +781,27 @@ def _refit_seen_through(obj: SceneObject, models: dict, options: FitOptions) -> 
     trial = replace(obj, result=again)
     _flag_scene_object(trial, options.seed, code_ratio_max=REFIT_CODE_RATIO_MAX)
     _mark_unexplained(trial, models)
-    moved = _moved_radii(first, again)
+    first_centre = _fitted_centre(first)
+    moved = _moved_radii(first_centre, again, float(first.transform.s))
     if (trial.status == "ok" and (again.quality.get("seen_through") or 0.0) <= SEEN_THROUGH_GAIN * through
             and (moved is None or moved <= REFIT_MOVED_MAX)):
         again.info["refitted"] = {"preset": ESCAPE_PRESET, "after": "seen through",
                                   "first": {"preset": first.info.get("preset"), "seen_through": through,
                                             "inlier_share": first.quality.get("inlier_share"), "loss": first.loss,
                                             "flag": first.flag, "radius_m": round(float(first.transform.s), 5),
-                                            "centre_m": _fitted_centre(first)},
+                                            "centre_m": first_centre},
                                   "moved_radii": moved}
         obj.result = again
 
 
-def _moved_radii(first: FitResult, again: FitResult) -> float | None:
-    """How far the bounding-box centre of ``again``'s mesh lies from ``first``'s, over ``first``'s
-    fitted radius; None where either has no mesh."""
-    centres = [_fitted_centre(r) for r in (first, again)]
-    if None in centres:
+def _moved_radii(first_centre: list[float] | None, again: FitResult, radius_m: float) -> float | None:
+    """How far the bounding-box centre of ``again``'s mesh lies from ``first_centre`` (3,) (m, the
+    first fit's, :func:`_fitted_centre`), over the first fit's radius ``radius_m``; None where
+    either fit has no mesh."""
+    centre = _fitted_centre(again)
+    if first_centre is None or centre is None:
         return None
-    return round(float(np.linalg.norm(np.subtract(*centres)) / first.transform.s), 4)
+    return round(float(np.linalg.norm(np.subtract(centre, first_centre)) / radius_m), 4)
 
 
 def _fitted_centre(result: FitResult) -> list[float] | None:

@@ -72,7 +72,7 @@ WORKER = textwrap.dedent("""
         second.load_checkpoint()
         assert second.step == settings.steps // 2
         second.run(progress=False)
-        del first, second
+        del first, second  # shutdown collects their cycles, then destroys the group
         shutdown(ctx)
 
     main(sys.argv[1], sys.argv[2])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gc
 from pathlib import Path
 
 import typer
@@ -98,7 +97,6 @@ def _train(out: Path, category: str, shapes: int, data: Path | None, arch: str, 
     trainer.run(progress=progress)
     is_main, steps, minutes = trainer.is_main, trainer.step, trainer.elapsed / 60
     del trainer  # its DDP wrapper holds the process group: freed now, not at interpreter exit
-    gc.collect()
     shutdown(ctx)
     if is_main:
         typer.echo(f"wrote {out / MODEL_NAME} ({training_data.n_shapes} shapes, {steps} steps, {minutes:.1f} min)")

@@ -1203,7 +1203,8 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     on its points, seen through on none of it and 0.2 radii away, replaces it (the first fit
     recorded), flagged with no bound on its code (the first, whose code lies as far out, is
     doubtful); a refit 0.6 radii from a fit 0.3 m off is not kept, nor a refit as far off its points
-    as the first, and a fit seen through on little of it is not fitted again."""
+    as the first (each recorded with why), and a fit seen through on little of it is not fitted
+    again."""
     import importlib
     from types import SimpleNamespace
 
@@ -1269,11 +1270,17 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     far = found_beside_its_points(0.3)  # its refit, on its points, lies 0.6 radii away: something else
     _refit_seen_through(far, models, options)
     assert len(refits) == 2 and far.result.transform.t[0] == 0.3 and "refitted" not in far.result.info
+    turned_down = far.result.info["refit_turned_down"]  # the refit it did not keep, and why
+    assert turned_down["moved_radii"] == pytest.approx(0.6, abs=0.01) and turned_down["seen_through"] < 0.01
+    assert len(turned_down["why"]) == 1 and turned_down["why"][0].startswith("moved 0.60 of the first's radius")
 
     fit_recorded.offset = 0.3
     stays = found_beside_its_points()
     _refit_seen_through(stays, models, options)
     assert len(refits) == 3 and stays.result.transform.t[0] == 0.3 and "refitted" not in stays.result.info
+    why = stays.result.info["refit_turned_down"]["why"]  # as far off its points: too few of them on it too
+    assert [w.split(":")[0].split(" on ")[0] for w in why] == ["not found", "seen through"] and "cover" in why[0]
+    assert "refit_turned_down" not in off.result.info
 
     near = found_beside_its_points(0.0)
     assert near.result.quality["seen_through"] <= SEEN_THROUGH_REFIT and _seen_through_in_part([near], options) == []

@@ -774,7 +774,8 @@ def _seen_through_in_part(objects: list[SceneObject], options: FitOptions) -> li
 def _refit_seen_through(obj: SceneObject, models: dict, options: FitOptions) -> None:
     """Fit ``obj`` again with :data:`ESCAPE_PRESET` and keep the new fit where it is still found,
     the cameras saw through at most :data:`SEEN_THROUGH_GAIN` times as much of it, and it moved
-    at most :data:`REFIT_MOVED_MAX` of the first fit's radius."""
+    at most :data:`REFIT_MOVED_MAX` of the first fit's radius. A refit turned down is recorded
+    in the first fit's ``info["refit_turned_down"]``: the refit's measures and ``why``."""
     first = obj.result
     through = first.quality["seen_through"]
     again = _escape_fit(models[obj.model], obj.choice.query, options, first)
@@ -783,15 +784,37 @@ def _refit_seen_through(obj: SceneObject, models: dict, options: FitOptions) -> 
     _mark_unexplained(trial, models)
     first_centre = _fitted_centre(first)
     moved = _moved_radii(first_centre, again, float(first.transform.s))
-    if (trial.status == "ok" and (again.quality.get("seen_through") or 0.0) <= SEEN_THROUGH_GAIN * through
-            and (moved is None or moved <= REFIT_MOVED_MAX)):
-        again.info["refitted"] = {"preset": ESCAPE_PRESET, "after": "seen through",
-                                  "first": {"preset": first.info.get("preset"), "seen_through": through,
-                                            "inlier_share": first.quality.get("inlier_share"), "loss": first.loss,
-                                            "flag": first.flag, "radius_m": round(float(first.transform.s), 5),
-                                            "centre_m": first_centre},
-                                  "moved_radii": moved}
-        obj.result = again
+    why = _refit_turned_down_why(trial, through, moved)
+    if why:
+        first.info["refit_turned_down"] = {"preset": ESCAPE_PRESET, "after": "seen through", "why": why,
+                                           "seen_through": again.quality.get("seen_through"),
+                                           "inlier_share": again.quality.get("inlier_share"), "loss": again.loss,
+                                           "flag": again.flag, "radius_m": round(float(again.transform.s), 5),
+                                           "moved_radii": moved}
+        return
+    again.info["refitted"] = {"preset": ESCAPE_PRESET, "after": "seen through",
+                              "first": {"preset": first.info.get("preset"), "seen_through": through,
+                                        "inlier_share": first.quality.get("inlier_share"), "loss": first.loss,
+                                        "flag": first.flag, "radius_m": round(float(first.transform.s), 5),
+                                        "centre_m": first_centre},
+                              "moved_radii": moved}
+    obj.result = again
+
+
+def _refit_turned_down_why(trial: SceneObject, first_seen_through: float, moved: float | None) -> list[str]:
+    """Why :func:`_refit_seen_through` turns down the refit ``trial`` (the object with the refit,
+    flagged and checked), of a first fit seen through on ``first_seen_through`` of it that moved
+    ``moved`` of the first's radius: an empty list where it keeps it."""
+    why = []
+    if trial.status != "ok":
+        why.append(f"not found: {trial.reason or trial.unexplained_by or trial.status}")
+    through = trial.result.quality.get("seen_through") or 0.0
+    if through > SEEN_THROUGH_GAIN * first_seen_through:
+        why.append(f"seen through on {through:.3f} of it, over {SEEN_THROUGH_GAIN} times the first's "
+                   f"{first_seen_through:.3f}")
+    if moved is not None and moved > REFIT_MOVED_MAX:
+        why.append(f"moved {moved:.2f} of the first's radius, over {REFIT_MOVED_MAX}")
+    return why
 
 
 def _moved_radii(first_centre: list[float] | None, again: FitResult, radius_m: float) -> float | None:

@@ -400,10 +400,9 @@ def test_a_preset_that_holds_each_class_to_its_sizes_holds_the_quick_fits_too(ro
 
 
 @pytest.mark.slow
-def test_a_scene_fits_in_float32_and_keeps_its_doubtful_fits_unless_asked_otherwise(room_scan, short_fits):
+def test_a_scene_keeps_its_doubtful_fits_unless_asked_to_fit_them_again_in_float32(room_scan, short_fits):
     """A scene's full fits run without the float32 retry (``SCENE_FLOAT32_RETRY``) though its
-    preset has it; ``float32_retry=True`` asks for it; a single fit keeps the preset's. They move
-    in float32 (``SCENE_DTYPE``) where the preset says auto, and in bfloat16 when asked."""
+    preset has it; ``float32_retry=True`` asks for it; a single fit keeps the preset's."""
     import importlib
 
     from jsrte.fit import scene as scene_module
@@ -417,13 +416,6 @@ def test_a_scene_fits_in_float32_and_keeps_its_doubtful_fits_unless_asked_otherw
     retries.clear()
     importlib.import_module("jsrte.fit").fit(room_scan, model="chair")
     assert retries == [True]
-
-    dtypes = short_fits("decoder_dtype")
-    scene_module.fit_scene(room_scan, model="chair")
-    assert dtypes and set(dtypes) == {scene_module.SCENE_DTYPE} == {"float32"}
-    dtypes.clear()
-    scene_module.fit_scene(room_scan, model="chair", dtype="bfloat16")
-    assert dtypes and set(dtypes) == {"bfloat16"}
 
 
 def test_an_object_outside_its_class_sizes_is_recorded_but_not_found():

@@ -38,7 +38,7 @@ AT = typer.Option(None, "--at", help="In a scan of several objects, fit the one 
                                      "metres); default: the one most like the model's class.")
 DTYPE = typer.Option(None, help="The decoder's arithmetic while the fit moves: auto (bfloat16 where the CPU or "
                                  "GPU has it natively, about twice as fast), float32 or bfloat16. Default: the "
-                                 "preset's (auto; float32 in paper and with --scene).")
+                                 "preset's (auto; float32 in paper).")
 FLOAT32_RETRY = typer.Option(
     None, "--float32-retry/--no-float32-retry",
     help="Fit a bfloat16 fit flagged doubtful again in float32 and keep the one with more inliers (default: the "

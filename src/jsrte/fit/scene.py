@@ -264,14 +264,6 @@ time), and moved class choices both ways: recall 0.77 -> 0.74, precision 0.73 ->
 of the found objects 0.79 -> 0.82 (docs/clutter.md)."""
 
 
-SCENE_DTYPE = "float32"
-"""A scene's fits move in float32 unless ``--dtype`` says otherwise (a single fit's preset moves in
-bfloat16 where the CPU has it). On the tuning rooms 100-119 of seed 0, bfloat16 (a 2-core Intel
-Xeon with AMX, 90 s a room) found 59 of 71 pieces of furniture with 3 false detections, mean
-F@5% 0.846, its flag catching 7 of 9 bad fits; float32 found 62 with 1, 0.853, 7 of 8
-(docs/results.md)."""
-
-
 PART_EXPLAINED = 0.05
 """A part of a split whose best screen score is at most this is explained well by some class
 (on the tuning rooms: 0.005-0.04 on parts that are most of one object; 0.07-0.1 on a wall's
@@ -460,8 +452,6 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
     options = (options or FitOptions(preset=SCENE_PRESET)).changed(**changes)
     if options.float32_retry is None:
         options = options.changed(float32_retry=SCENE_FLOAT32_RETRY)
-    if options.dtype is None:
-        options = options.changed(dtype=SCENE_DTYPE)
     if options.at is not None:
         raise JsrteError("--scene fits every object; --at picks one (give one or the other)", path)
     timing: dict[str, float] = {}

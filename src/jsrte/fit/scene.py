@@ -786,19 +786,20 @@ def _refit_seen_through(obj: SceneObject, models: dict, options: FitOptions) -> 
     moved = _moved_radii(first_centre, again, float(first.transform.s))
     why = _refit_turned_down_why(trial, through, moved)
     if why:
-        first.info["refit_turned_down"] = {"preset": ESCAPE_PRESET, "after": "seen through", "why": why,
-                                           "seen_through": again.quality.get("seen_through"),
-                                           "inlier_share": again.quality.get("inlier_share"), "loss": again.loss,
-                                           "flag": again.flag, "radius_m": round(float(again.transform.s), 5),
-                                           "moved_radii": moved}
+        first.info["refit_turned_down"] = {"after": "seen through", "why": why, **_fit_summary(again),
+                                           "preset": ESCAPE_PRESET, "moved_radii": moved}
         return
     again.info["refitted"] = {"preset": ESCAPE_PRESET, "after": "seen through",
-                              "first": {"preset": first.info.get("preset"), "seen_through": through,
-                                        "inlier_share": first.quality.get("inlier_share"), "loss": first.loss,
-                                        "flag": first.flag, "radius_m": round(float(first.transform.s), 5),
-                                        "centre_m": first_centre},
-                              "moved_radii": moved}
+                              "first": _fit_summary(first) | {"centre_m": first_centre}, "moved_radii": moved}
     obj.result = again
+
+
+def _fit_summary(result: FitResult) -> dict[str, Any]:
+    """The measures a refit's record keeps of ``result``: its preset, seen-through and inlier
+    shares, loss, flag and radius (m)."""
+    return {"preset": result.info.get("preset"), "seen_through": result.quality.get("seen_through"),
+            "inlier_share": result.quality.get("inlier_share"), "loss": result.loss, "flag": result.flag,
+            "radius_m": round(float(result.transform.s), 5)}
 
 
 def _refit_turned_down_why(trial: SceneObject, first_seen_through: float, moved: float | None) -> list[str]:

@@ -1203,8 +1203,8 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     on its points, seen through on none of it and 0.2 radii away, replaces it (the first fit
     recorded), flagged with no bound on its code (the first, whose code lies as far out, is
     doubtful); a refit 0.6 radii from a fit 0.3 m off is not kept, nor a refit as far off its points
-    as the first (each recorded with why), and a fit seen through on little of it is not fitted
-    again."""
+    as the first (each recorded with why), and neither a fit seen through on little of it nor one
+    the escape preset made already is fitted again."""
     import importlib
     from types import SimpleNamespace
 
@@ -1285,3 +1285,6 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     near = found_beside_its_points(0.0)
     assert near.result.quality["seen_through"] <= SEEN_THROUGH_REFIT and _seen_through_in_part([near], options) == []
     assert _seen_through_in_part([found_beside_its_points()], FitOptions(preset=ESCAPE_PRESET)) == []
+    escaped = found_beside_its_points()  # already fitted again by the escape preset: a refit would repeat it
+    escaped.result.info["preset"] = ESCAPE_PRESET
+    assert _seen_through_in_part([escaped, far], options) == [far]

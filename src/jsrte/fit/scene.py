@@ -764,10 +764,12 @@ training codes' median distance) were 5 good fits (F@5% >= 0.85), 1 bad one (0.6
 
 def _seen_through_in_part(objects: list[SceneObject], options: FitOptions) -> list[SceneObject]:
     """The found objects of ``objects`` whose fits the cameras saw through on more than
-    :data:`SEEN_THROUGH_REFIT` of them, and that a query of their own can fit again."""
+    :data:`SEEN_THROUGH_REFIT` of them, that a query of their own can fit again, and whose fit is
+    not already one of :data:`ESCAPE_PRESET` (an escaped fit fitted again: a refit would repeat it)."""
     if options.preset == ESCAPE_PRESET:
         return []
     return [o for o in objects if o.status == "ok" and o.result is not None and isinstance(o.choice, Choice)
+            and o.result.info.get("preset") != ESCAPE_PRESET
             and (o.result.quality.get("seen_through") or 0.0) > SEEN_THROUGH_REFIT]
 
 

@@ -717,7 +717,8 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
 
     def found(index: int, model: str, x: float, share: float, points: np.ndarray) -> SceneObject:
         placed = Sim3(1.0, np.eye(3), np.array([x, 0.0, 0.0]))
-        result = SimpleNamespace(quality={"inlier_share": share}, transform=placed, latent=np.zeros(4), mesh=None)
+        result = SimpleNamespace(quality={"inlier_share": share}, transform=placed, latent=np.zeros(4), mesh=None,
+                                 info={})
         return SceneObject(index, index, points, model=model, result=result)
 
     b = found(0, "chair", 0.3, 0.95, on_a[on_a[:, 0] > 0.6])
@@ -759,7 +760,7 @@ def test_two_fits_of_one_class_whose_centres_nearly_meet_are_one_object(monkeypa
         centre = np.array([x, 0.0, 0.0])
         mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.8).apply_translation(centre)
         result = SimpleNamespace(quality={"inlier_share": 0.9}, transform=Sim3(1.0, np.eye(3), centre),
-                                 latent=np.zeros(4), mesh=mesh)
+                                 latent=np.zeros(4), mesh=mesh, info={})
         return SceneObject(index, index, points, model=model, result=result)
 
     b = found(0, "chair", 0.2, on_a[on_a[:, 0] > 0.6])

@@ -731,10 +731,15 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     _drop_second_fits([b, a, c, d], models, seed=0)
     assert [o.status for o in (a, c, d)] == ["ok", "ok", "ok"] and inside >= SECOND_FIT_SHARE
     assert b.status == "unexplained" and b.unexplained_by == "second fit" and "object 1 (sofa)" in b.reason
+    record = b.result.info["second_fit"]  # what fit.json says of it: the kept one, the measures, the decision
+    assert record["of"] == 1 and record["shared_volume"] == pytest.approx(inside, abs=0.02)
+    assert record["by"] == "points of both" and record["kept_on_points_of_both"] == len(a.points) + len(b.points)
+    assert record["on_points_of_both"] < 0.5 * len(a.points)
     # a newcomer (an object of the leftovers) goes whichever lies on more: A here, found after B
     b.status, b.unexplained_by, b.reason = "ok", "", ""
     _drop_second_fits([b, a, c, d], models, seed=0, newcomers=[a])
     assert a.status == "unexplained" and "object 0 (chair)" in a.reason and b.status == c.status == "ok"
+    assert a.result.info["second_fit"]["by"] == "found later"
 
 
 def test_two_fits_of_one_class_whose_centres_nearly_meet_are_one_object(monkeypatch):

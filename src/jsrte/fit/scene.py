@@ -310,14 +310,6 @@ two different objects found beside each other (a chair at a table, a bed by a so
 most 0.04."""
 
 
-SECOND_FIT_CROSSED = 0.0
-"""Two found objects whose fitted shapes share :data:`SECOND_FIT_SHARE` of a shape's volume are
-two fits of one object only where one's fit lies on at least this share of the other's points
-(:func:`_crossed_shares`): the fits of two pieces of one object are each the whole object, so
-each lies on the other's piece; a bed and the chair pushed against it can share a tenth of the
-chair's volume where the scan saw neither."""
-
-
 SECOND_FIT_CENTRES = 0.5
 """Two found objects of one class are two fits of one object where the centres of their fitted
 meshes lie closer than this times the larger radius (:func:`_drop_second_fits`): two fits on two
@@ -1281,31 +1273,20 @@ def _drop_second_fits(objects: list[SceneObject], models: dict, seed: int,
     for apart, share, a, b in sorted(pairs, key=lambda pair: (pair[0] >= SECOND_FIT_CENTRES, -pair[1])):
         if (share < SECOND_FIT_SHARE and apart >= SECOND_FIT_CENTRES) or a.status != "ok" or b.status != "ok":
             continue
-        crossed = _crossed_shares(a, b, models)
-        if apart >= SECOND_FIT_CENTRES and max(crossed) < SECOND_FIT_CROSSED:
-            continue
         if new is not None and (id(a) in new) != (id(b) in new):
-            second, kept = (a, b) if id(a) in new else (b, a)
+            (second, kept), decided = ((a, b) if id(a) in new else (b, a)), {"by": "found later"}
         else:
             both = np.concatenate([a.points, b.points])
             on_a, on_b = _points_on_fit(a, both, models), _points_on_fit(b, both, models)
             second, kept = (a, b) if on_a < on_b else (b, a)
+            decided = {"by": "points of both", "on_points_of_both": min(on_a, on_b),
+                       "kept_on_points_of_both": max(on_a, on_b)}
         second.status, second.unexplained_by = "unexplained", "second fit"
         second.reason = (f"a second fit of object {kept.index} ({kept.model}): "
                          + (f"the two fitted shapes share {share:.0%} of one's volume" if share >= SECOND_FIT_SHARE
                             else f"their centres lie {apart:.2f} radii apart"))
-        on_kept, kept_on = crossed if second is a else crossed[::-1]
         second.result.info["second_fit"] = {"of": kept.index, "shared_volume": round(share, 4),
-                                            "centres_apart": None if np.isinf(apart) else round(apart, 4),
-                                            "on_points_of_kept": round(on_kept, 4),
-                                            "kept_on_its_points": round(kept_on, 4)}
-
-
-def _crossed_shares(first: SceneObject, second: SceneObject, models: dict) -> tuple[float, float]:
-    """The share of ``second``'s points that ``first``'s fit lies on, and of ``first``'s that
-    ``second``'s fit lies on (:func:`_points_on_fit`)."""
-    return (_points_on_fit(first, second.points, models) / max(len(second.points), 1),
-            _points_on_fit(second, first.points, models) / max(len(first.points), 1))
+                                            "centres_apart": None if np.isinf(apart) else round(apart, 4)} | decided
 
 
 def _centres_apart(first: SceneObject, second: SceneObject) -> float:

@@ -560,6 +560,21 @@ def test_a_scene_object_is_held_to_a_looser_code_bound_than_a_single_fit():
         assert single == "doubtful" and obj.result.flag == flag
 
 
+def test_a_found_object_whose_fit_holds_its_points_loosely_is_doubtful():
+    """A fit flagged ok whose points lie at 0.5% of its radius from it on average stays ok; at
+    1.5% it is doubtful; a fit already doubtful stays so, and one without the measure as it was."""
+    from types import SimpleNamespace
+
+    from jsrte.fit.scene import LOOSE_SDF_REL_MAX, SceneObject, _flag_loose_fits
+
+    assert 0.005 < LOOSE_SDF_REL_MAX < 0.015
+    cases = [(0.005, "ok", "ok"), (0.015, "ok", "doubtful"), (0.002, "doubtful", "doubtful"), (None, "ok", "ok")]
+    objects = [SceneObject(k, k, np.zeros((1, 3)), model="bed",
+                           result=SimpleNamespace(quality={"mean_abs_sdf_rel": distance}, flag=flag))
+               for k, (distance, flag, _) in enumerate(cases)]
+    _flag_loose_fits(objects + [SceneObject(9, 9, np.zeros((1, 3)), status="failed")])
+    assert [o.result.flag for o in objects] == [expected for *_, expected in cases]
+
 def test_a_table_whose_top_the_scan_did_not_see_is_not_found():
     """A fitted sphere of radius 0.5 m seen on its lower 80%: most of its surface is covered, its
     top (the cap in the highest tenth of its height) not. Fitted as a table, it is no object (a

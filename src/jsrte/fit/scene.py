@@ -408,6 +408,17 @@ more, and 7 of the false detections lay below 0.23 (0.156-0.229; the next at 0.2
 below 0.15."""
 
 
+LOOSE_SDF_REL_MAX = 0.011
+"""A found object's fit is doubtful where its points' trimmed mean distance to it exceeds this
+share of its radius (``mean_abs_sdf_rel`` in its quality block): found, but holding its points
+loosely, a shape of the right place and size and of other proportions. Set last, after every
+check (:func:`_flag_loose_fits`): the choices between fits weigh the flag without it. On the
+tuning rooms (100-169 of seed 0, Intel Xeon, bfloat16; 122 good fits, F@5% >= 0.85, and 39 bad
+ones, < 0.7) the good fits lay at 0.0104 of their radius or less, and the bad fits the other
+rules passed at 0.0119 or more; 0.011 lies in that gap. It caught 4 more bad fits (31 -> 35)
+and flagged no good one more (10); a bound on the inlier share as well (0.7-0.8) caught none
+more (``benchmarks/bench_loose_fits.py``)."""
+
 TOP_SEEN_MIN = {"table": 0.35}
 """A fitted object of these classes is found only where its candidate's points cover at least
 this share of its fitted top (``top_coverage`` in its quality block: the surface within the
@@ -505,6 +516,7 @@ def fit_scene(path: str | Path, *, model: object = "auto", options: FitOptions |
             _drop_second_fits(objects + extra, models, options.seed, newcomers=extra)
             _drop_seen_through(extra)
             objects += extra
+    _flag_loose_fits(objects)
     timing["total"] = round(time.perf_counter() - started, 2)
     skipped = [{"candidate": k, "points": len(c.index), "reason": c.rejected}
                for k, c in enumerate(seg.candidates) if c.rejected]
@@ -1379,7 +1391,8 @@ def _flag_scene_object(obj: SceneObject, seed: int, code_ratio_max: float = SCEN
     is doubtful where more than :data:`SEEN_THROUGH_MAX` was seen through; where its points cover
     less than :data:`COVERED_MIN` of the surface (without the share seen through:
     :data:`CLASS_COVERED_MIN` for its classes); and below :data:`UNSURE_COVERED_MIN` where its class
-    was barely preferred (a screen margin below :data:`UNSURE_CLASS_MARGIN`)."""
+    was barely preferred (a screen margin below :data:`UNSURE_CLASS_MARGIN`). A scene flags its
+    loose fits after every check (:func:`_flag_loose_fits`)."""
     from jsrte.fit.quality import RULE, flag_of, seen_through_share, surface_coverage, top_coverage
 
     r = obj.result
@@ -1400,6 +1413,15 @@ def _flag_scene_object(obj: SceneObject, seed: int, code_ratio_max: float = SCEN
     if through is not None and through > SEEN_THROUGH_MAX:
         r.flag = "doubtful"
 
+
+def _flag_loose_fits(objects: list[SceneObject]) -> None:
+    """Flag ``doubtful`` every fitted object of ``objects`` whose points lie at more than
+    :data:`LOOSE_SDF_REL_MAX` of its radius from its fit on average (``mean_abs_sdf_rel``)."""
+    for obj in objects:
+        r = obj.result
+        distance = None if r is None else r.quality.get("mean_abs_sdf_rel")
+        if r is not None and r.flag is not None and distance is not None and distance > LOOSE_SDF_REL_MAX:
+            r.flag = "doubtful"
 
 def _box_centre(points: np.ndarray) -> list[float]:
     """The centre (3,) of the bounding box of ``points`` (n, 3)."""

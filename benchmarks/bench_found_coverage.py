@@ -1,4 +1,4 @@
-"""How the coverage a found object needs (``jsrte.fit.scene.COVERED_FOUND``), the share of it the
+"""How the coverage a found object needs (``jsrte.fit.scene_checks.COVERED_FOUND``), the share of it the
 cameras may see through (``SEEN_THROUGH_FOUND_MAX``, with ``--seen-through``), or the share of its
 points its fit must lie on (``FOUND_SHARE``, with ``--inlier``) trades objects found against false
 detections, from ``jsrte experiment scenes`` rows.
@@ -23,7 +23,7 @@ from pathlib import Path
 
 from replay_bounds import rows_and_bounds
 
-from jsrte.fit.scene import COVERED_FOUND, FOUND_SHARE, SEEN_THROUGH_FOUND_MAX
+from jsrte.fit.scene_checks import COVERED_FOUND, FOUND_SHARE, SEEN_THROUGH_FOUND_MAX
 
 DEFAULT_BOUNDS = (0.15, 0.17, 0.19, 0.21, 0.22, 0.23, 0.24, 0.25, 0.28, 0.3)
 SEEN_THROUGH_BOUNDS = (0.13, 0.15, 0.2, 0.25, 0.28, 0.3, 0.32, 0.35, 0.4)

@@ -1,5 +1,5 @@
 """How the bound under which a found scene object's fit holds its points too loosely
-(``jsrte.fit.scene.LOOSE_SDF_REL_MAX``), alone or with a bound on the inlier share, trades bad
+(``jsrte.fit.scene_checks.LOOSE_SDF_REL_MAX``), alone or with a bound on the inlier share, trades bad
 fits caught against good fits flagged, from ``jsrte experiment scenes`` rows.
 
 ``python benchmarks/bench_loose_fits.py OBJECTS.csv [OBJECTS.csv ...] [--distances inf,0.011] [--inliers 0,0.75]``
@@ -21,7 +21,7 @@ import csv
 import math
 from pathlib import Path
 
-from jsrte.fit.scene import LOOSE_SDF_REL_MAX
+from jsrte.fit.scene_checks import LOOSE_SDF_REL_MAX
 
 BAD_BELOW, GOOD_FROM = 0.7, 0.85
 

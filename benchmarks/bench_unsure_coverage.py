@@ -1,5 +1,5 @@
 """How the coverage under which a barely preferred class makes a scene object's fit doubtful
-(``jsrte.fit.scene.UNSURE_COVERED_MIN``, with ``UNSURE_CLASS_MARGIN``) trades bad fits caught
+(``jsrte.fit.scene_checks.UNSURE_COVERED_MIN``, with ``UNSURE_CLASS_MARGIN``) trades bad fits caught
 against good fits flagged, from ``jsrte experiment scenes`` rows.
 
 ``python benchmarks/bench_unsure_coverage.py OBJECTS.csv [OBJECTS.csv ...] [--bounds 0.35,0.39,0.43]``
@@ -20,7 +20,7 @@ from pathlib import Path
 
 from replay_bounds import rows_and_bounds
 
-from jsrte.fit.scene import UNSURE_CLASS_MARGIN, UNSURE_COVERED_MIN
+from jsrte.fit.scene_checks import UNSURE_CLASS_MARGIN, UNSURE_COVERED_MIN
 
 DEFAULT_BOUNDS = (0.35, 0.37, 0.39, 0.41, 0.42, 0.43, 0.44, 0.45, 0.47)
 BAD_BELOW, GOOD_FROM = 0.7, 0.85

@@ -12,7 +12,8 @@ import torch
 
 from cli_runner import run_cli
 from jsrte.errors import JsrteError
-from jsrte.fit.scene import PHASES, SEEN_THROUGH_MAX
+from jsrte.fit.scene import PHASES
+from jsrte.fit.scene_checks import SEEN_THROUGH_MAX
 from jsrte.scans.scene import SceneSettings, scan_room, write_room
 from jsrte.shapes import EVAL_SET_SEED, generate_shape, shape_seed
 from test_clutter import table
@@ -140,7 +141,7 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
 
     import trimesh
 
-    from jsrte.fit.scene import EXPLAINED_SHARE, FOUND_SHARE
+    from jsrte.fit.scene_checks import EXPLAINED_SHARE, FOUND_SHARE
 
     fitting = importlib.import_module("jsrte.fit")  # the package (jsrte.fit is the function)
     solve = importlib.import_module("jsrte.fit.solve")
@@ -157,8 +158,8 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
 
     monkeypatch.setattr(fitting, "fit_recorded", fit_then_move_the_first)
     monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "ESCAPE_PRESET", "smoke")  # not fitted again
-    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "COVERED_FOUND", 0.0)
-    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "SEEN_THROUGH_FOUND_MAX", 1.0)
+    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene_checks"), "COVERED_FOUND", 0.0)
+    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene_checks"), "SEEN_THROUGH_FOUND_MAX", 1.0)
     out = tmp_path / "scene"
     code, text, err = run_cli(monkeypatch, capsys, "fit", room_scan, "--scene", "--model", "chair", "--out", out,
                               "--threads", "1", "--no-progress", "--preset", "smoke")
@@ -424,7 +425,8 @@ def test_an_object_outside_its_class_sizes_is_recorded_but_not_found():
     that records no sizes, it stays an object."""
     from types import SimpleNamespace
 
-    from jsrte.fit.scene import SIZE_MARGIN, SceneObject, _mark_unexplained
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import SIZE_MARGIN, mark_unexplained
     from jsrte.model.sizes import ClassSizes
 
     table_sizes = ClassSizes(smallest=0.40, median=0.80, largest=1.30, shapes=200).__dict__
@@ -434,7 +436,7 @@ def test_an_object_outside_its_class_sizes_is_recorded_but_not_found():
     def fitted(model: str, radius: float, share: float = 0.95) -> SceneObject:
         result = SimpleNamespace(quality={"inlier_share": share}, transform=SimpleNamespace(s=radius))
         obj = SceneObject(0, 0, np.zeros((10, 3)), model=model, result=result)
-        _mark_unexplained(obj, models)
+        mark_unexplained(obj, models)
         return obj
 
     too_big = fitted("table", 1.30 * SIZE_MARGIN * 1.05)
@@ -458,15 +460,15 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
 
     import trimesh
 
-    from jsrte.fit.scene import (
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import (
         CLASS_COVERED_MIN,
         COVERED_FOUND,
         COVERED_MIN,
         UNSURE_CLASS_MARGIN,
         UNSURE_COVERED_MIN,
-        SceneObject,
-        _flag_scene_object,
-        _mark_unexplained,
+        flag_scene_object,
+        mark_unexplained,
     )
     from jsrte.geometry.sim3 import Sim3
 
@@ -480,8 +482,8 @@ def test_an_object_whose_points_cover_little_of_its_fit_is_doubtful_or_not_found
         result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
         obj = SceneObject(0, 0, on[height > 1.0 - 2.0 * top_share], model=model, result=result,
                           class_choice=class_choice)
-        _flag_scene_object(obj, seed=0)
-        _mark_unexplained(obj, models)
+        flag_scene_object(obj, seed=0)
+        mark_unexplained(obj, models)
         return obj
 
     seen = fitted(0.8)
@@ -511,7 +513,8 @@ def test_an_object_whose_fit_lies_on_too_few_of_its_points_is_not_found():
 
     import trimesh
 
-    from jsrte.fit.scene import EXPLAINED_SHARE, FOUND_SHARE, SceneObject, _flag_scene_object, _mark_unexplained
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import EXPLAINED_SHARE, FOUND_SHARE, flag_scene_object, mark_unexplained
     from jsrte.geometry.sim3 import Sim3
 
     sphere = trimesh.creation.icosphere(subdivisions=4)
@@ -522,8 +525,8 @@ def test_an_object_whose_fit_lies_on_too_few_of_its_points_is_not_found():
     def fitted(share: float) -> SceneObject:
         result = SimpleNamespace(quality={"inlier_share": share}, transform=placed, mesh_canonical=sphere, flag="ok")
         obj = SceneObject(0, 0, points, model="chair", result=result)
-        _flag_scene_object(obj, seed=0)
-        _mark_unexplained(obj, models)
+        flag_scene_object(obj, seed=0)
+        mark_unexplained(obj, models)
         return obj
 
     assert EXPLAINED_SHARE < 0.5 < FOUND_SHARE < 0.7
@@ -544,7 +547,8 @@ def test_a_scene_object_is_held_to_a_looser_code_bound_than_a_single_fit():
     import trimesh
 
     from jsrte.fit.quality import RULE, flag_of
-    from jsrte.fit.scene import SCENE_CODE_RATIO_MAX, SceneObject, _flag_scene_object
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import SCENE_CODE_RATIO_MAX, flag_scene_object
     from jsrte.geometry.sim3 import Sim3
 
     sphere = trimesh.creation.icosphere(subdivisions=4)
@@ -556,7 +560,7 @@ def test_a_scene_object_is_held_to_a_looser_code_bound_than_a_single_fit():
         single = flag_of(quality)
         result = SimpleNamespace(quality=quality, transform=placed, mesh_canonical=sphere, flag=single)
         obj = SceneObject(0, 0, on, model="sofa", result=result)
-        _flag_scene_object(obj, seed=0)
+        flag_scene_object(obj, seed=0)
         assert single == "doubtful" and obj.result.flag == flag
 
 
@@ -565,14 +569,15 @@ def test_a_found_object_whose_fit_holds_its_points_loosely_is_doubtful():
     1.5% it is doubtful; a fit already doubtful stays so, and one without the measure as it was."""
     from types import SimpleNamespace
 
-    from jsrte.fit.scene import LOOSE_SDF_REL_MAX, SceneObject, _flag_loose_fits
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import LOOSE_SDF_REL_MAX, flag_loose_fits
 
     assert 0.005 < LOOSE_SDF_REL_MAX < 0.015
     cases = [(0.005, "ok", "ok"), (0.015, "ok", "doubtful"), (0.002, "doubtful", "doubtful"), (None, "ok", "ok")]
     objects = [SceneObject(k, k, np.zeros((1, 3)), model="bed",
                            result=SimpleNamespace(quality={"mean_abs_sdf_rel": distance}, flag=flag))
                for k, (distance, flag, _) in enumerate(cases)]
-    _flag_loose_fits(objects + [SceneObject(9, 9, np.zeros((1, 3)), status="failed")])
+    flag_loose_fits(objects + [SceneObject(9, 9, np.zeros((1, 3)), status="failed")])
     assert [o.result.flag for o in objects] == [expected for *_, expected in cases]
 
 def test_a_table_whose_top_the_scan_did_not_see_is_not_found():
@@ -583,7 +588,8 @@ def test_a_table_whose_top_the_scan_did_not_see_is_not_found():
 
     import trimesh
 
-    from jsrte.fit.scene import COVERED_MIN, TOP_SEEN_MIN, SceneObject, _flag_scene_object, _mark_unexplained
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import COVERED_MIN, TOP_SEEN_MIN, flag_scene_object, mark_unexplained
     from jsrte.geometry.sim3 import Sim3
 
     sphere = trimesh.creation.icosphere(subdivisions=4)
@@ -595,8 +601,8 @@ def test_a_table_whose_top_the_scan_did_not_see_is_not_found():
     def fitted(model: str) -> SceneObject:
         result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=placed, mesh_canonical=sphere, flag="ok")
         obj = SceneObject(0, 0, below_top, model=model, result=result)
-        _flag_scene_object(obj, seed=0)
-        _mark_unexplained(obj, models)
+        flag_scene_object(obj, seed=0)
+        mark_unexplained(obj, models)
         return obj
 
     table = fitted("table")
@@ -615,7 +621,8 @@ def test_a_fit_that_explains_almost_none_of_its_points_is_fitted_again(monkeypat
     import importlib
     from types import SimpleNamespace
 
-    from jsrte.fit.scene import ESCAPE_PRESET, EXPLAINED_SHARE, SceneObject, _refit_escaped
+    from jsrte.fit.scene import ESCAPE_PRESET, SceneObject, _refit_escaped
+    from jsrte.fit.scene_checks import EXPLAINED_SHARE
     from jsrte.options import FitOptions
 
     presets = []
@@ -657,7 +664,8 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
 
     import trimesh
 
-    from jsrte.fit.scene import SceneObject, _fit_another_class, _flag_scene_object, _mark_unexplained
+    from jsrte.fit.scene import SceneObject, _fit_another_class
+    from jsrte.fit.scene_checks import flag_scene_object, mark_unexplained
     from jsrte.geometry.sim3 import Sim3
     from jsrte.model.sizes import ClassSizes
     from jsrte.options import FitOptions
@@ -685,8 +693,8 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
                                  info={"class": {"chosen": "table", "scores": scores}})
         obj = SceneObject(0, 0, points, model="table", result=result, choice=SimpleNamespace(query=None),
                           class_choice={"chosen": "table", "scores": scores})
-        _flag_scene_object(obj, seed=0)
-        _mark_unexplained(obj, models)
+        flag_scene_object(obj, seed=0)
+        mark_unexplained(obj, models)
         assert obj.status == "unexplained" and obj.unexplained_by == "size"
         return obj
 
@@ -723,7 +731,8 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     from types import SimpleNamespace
 
     from jsrte.fit.quality import volume_inside
-    from jsrte.fit.scene import SECOND_FIT_SHARE, SceneObject, _drop_second_fits
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import SECOND_FIT_SHARE, drop_second_fits
     from jsrte.geometry.sim3 import Sim3
 
     models = {"sofa": SimpleNamespace(decoder=BallDecoder()), "chair": SimpleNamespace(decoder=BallDecoder())}
@@ -743,7 +752,7 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     inside = volume_inside(BallDecoder(), b.result, BallDecoder(), a.result)
     assert 0.6 < inside < 0.8  # two balls of radius 0.8, 0.3 apart: 72% of each in the other
     assert volume_inside(BallDecoder(), c.result, BallDecoder(), a.result) == 0.0
-    _drop_second_fits([b, a, c, d], models, seed=0)
+    drop_second_fits([b, a, c, d], models, seed=0)
     assert [o.status for o in (a, c, d)] == ["ok", "ok", "ok"] and inside >= SECOND_FIT_SHARE
     assert b.status == "unexplained" and b.unexplained_by == "second fit" and "object 1 (sofa)" in b.reason
     record = b.result.info["second_fit"]  # what fit.json says of it: the kept one, the measures, the decision
@@ -752,7 +761,7 @@ def test_of_two_fits_sharing_a_volume_the_one_on_fewer_of_the_points_of_both_is_
     assert record["on_points_of_both"] < 0.5 * len(a.points)
     # a newcomer (an object of the leftovers) goes whichever lies on more: A here, found after B
     b.status, b.unexplained_by, b.reason = "ok", "", ""
-    _drop_second_fits([b, a, c, d], models, seed=0, newcomers=[a])
+    drop_second_fits([b, a, c, d], models, seed=0, newcomers=[a])
     assert a.status == "unexplained" and "object 0 (chair)" in a.reason and b.status == c.status == "ok"
     assert a.result.info["second_fit"]["by"] == "found later"
 
@@ -768,10 +777,11 @@ def test_two_fits_of_one_class_whose_centres_nearly_meet_are_one_object(monkeypa
 
     import trimesh
 
-    from jsrte.fit.scene import SECOND_FIT_CENTRES, SceneObject, _drop_second_fits
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import SECOND_FIT_CENTRES, drop_second_fits
     from jsrte.geometry.sim3 import Sim3
 
-    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "_shared_volume", lambda *args: 0.0)
+    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene_checks"), "shared_volume", lambda *args: 0.0)
     models = {"sofa": SimpleNamespace(decoder=BallDecoder()), "chair": SimpleNamespace(decoder=BallDecoder())}
     directions = np.random.default_rng(0).normal(size=(2000, 3))
     on_a = 0.8 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
@@ -787,7 +797,7 @@ def test_two_fits_of_one_class_whose_centres_nearly_meet_are_one_object(monkeypa
     a = found(1, "chair", 0.0, on_a[on_a[:, 0] <= 0.6])
     c = found(2, "sofa", 0.2, on_a[:100])
     d = found(3, "chair", -SECOND_FIT_CENTRES - 0.05, on_a[:100] - [SECOND_FIT_CENTRES + 0.05, 0.0, 0.0])
-    _drop_second_fits([b, a, c, d], models, seed=0)
+    drop_second_fits([b, a, c, d], models, seed=0)
     assert b.status == "unexplained" and b.unexplained_by == "second fit"
     assert b.reason == "a second fit of object 1 (chair): their centres lie 0.20 radii apart"
     assert [o.status for o in (a, c, d)] == ["ok", "ok", "ok"]
@@ -893,7 +903,7 @@ def test_the_parts_of_a_found_whole_its_fit_leaves_over_are_fitted_as_objects_of
                 obj.model, obj.result = "ball", SimpleNamespace(quality={}, flag="ok")
 
         monkeypatch.setattr(scene_module, "_fit_object", fit)
-        for name in ("_check_objects", "_drop_second_fits", "_drop_seen_through"):
+        for name in ("_check_objects", "drop_second_fits", "drop_seen_through"):
             monkeypatch.setattr(scene_module, name, lambda *args, **kwargs: [])
         whole.status, whole.unexplained_by, whole.reason = "ok", "", ""
         new = _fit_parts_left_over([whole], cands, {}, {}, models, FitOptions(), None, workers=1)
@@ -1106,7 +1116,8 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
     from types import SimpleNamespace
 
     from jsrte.fit import scene as scene_module
-    from jsrte.fit.scene import SEEN_THROUGH_FOUND_MAX, SceneObject, _fit_parts_of_dropped
+    from jsrte.fit.scene import SceneObject, _fit_parts_of_dropped
+    from jsrte.fit.scene_checks import SEEN_THROUGH_FOUND_MAX
     from jsrte.options import FitOptions
 
     candidates = [_Candidate(60, parts=[1, 2, 3]), _Candidate(20, parent=0), _Candidate(30, parts=[4, 5], parent=0),
@@ -1124,7 +1135,7 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
 
     monkeypatch.setattr(scene_module, "_fit_object", fit_object)
     monkeypatch.setattr(scene_module, "_check_objects", lambda objects, *args: [])
-    monkeypatch.setattr(scene_module, "_drop_second_fits", lambda *args, **kwargs: None)
+    monkeypatch.setattr(scene_module, "drop_second_fits", lambda *args, **kwargs: None)
 
     def whole(dropped_by: str) -> SceneObject:
         obj = SceneObject(7, 0, points, model="m", status="unexplained", unexplained_by=dropped_by)
@@ -1154,6 +1165,7 @@ def test_a_whole_judged_two_objects_is_fitted_whole_when_a_part_is_not_found(mon
     from types import SimpleNamespace
 
     from jsrte.fit import scene as scene_module
+    from jsrte.fit import scene_checks
     from jsrte.fit.scene import SceneObject, _covered_json, _fit_split_wholes
     from jsrte.options import FitOptions
 
@@ -1173,10 +1185,11 @@ def test_a_whole_judged_two_objects_is_fitted_whole_when_a_part_is_not_found(mon
                                      lies_on=whole_fit["lies_on"])
 
     monkeypatch.setattr(scene_module, "_fit_object", fit_object)
-    monkeypatch.setattr(scene_module, "_flag_scene_object", lambda obj, seed: None)
-    monkeypatch.setattr(scene_module, "_mark_unexplained", lambda obj, models: None)
-    monkeypatch.setattr(scene_module, "_points_on_fit",
-                        lambda obj, pts, models: int(np.isin(pts[:, 0], obj.result.lies_on).sum()))
+    monkeypatch.setattr(scene_module, "flag_scene_object", lambda obj, seed: None)
+    monkeypatch.setattr(scene_module, "mark_unexplained", lambda obj, models: None)
+    for module in (scene_module, scene_checks):
+        monkeypatch.setattr(module, "points_on_fit",
+                            lambda obj, pts, models: int(np.isin(pts[:, 0], obj.result.lies_on).sum()))
 
     def run(lies_on: np.ndarray, flag: str = "ok", part_flag: str = "doubtful", second: bool = False,
             inside: bool = False):
@@ -1235,10 +1248,10 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
         ESCAPE_PRESET,
         SEEN_THROUGH_REFIT,
         SceneObject,
-        _flag_scene_object,
         _refit_seen_through,
         _seen_through_in_part,
     )
+    from jsrte.fit.scene_checks import flag_scene_object
     from jsrte.fit.screen import Choice
     from jsrte.geometry.sim3 import Sim3
     from jsrte.options import FitOptions
@@ -1272,7 +1285,7 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     def found_beside_its_points(offset: float = 0.3) -> SceneObject:
         obj = SceneObject(0, 0, cap, model="sofa", result=fit_at(offset, "fast-scales"), views=views,
                           choice=Choice(query=None, model=None, screened=[], classes={"sofa": 0.01}))
-        _flag_scene_object(obj, seed=0)
+        flag_scene_object(obj, seed=0)
         return obj
 
     options = FitOptions(preset="fast-scales")

@@ -85,14 +85,15 @@ def ball_fitted_as_bed(seen_by: CameraViews | None) -> object:
 
     import trimesh
 
-    from jsrte.fit.scene import SceneObject, _flag_scene_object
+    from jsrte.fit.scene import SceneObject
+    from jsrte.fit.scene_checks import flag_scene_object
 
     readings = np.concatenate([ball_before_wall(c) for c in CAMERAS])
     front = readings[np.linalg.norm(readings - BALL_CENTRE, axis=1) < BALL_RADIUS + 0.01]
     result = SimpleNamespace(quality={"inlier_share": 0.95}, transform=Sim3(BALL_RADIUS, np.eye(3), BALL_CENTRE),
                              mesh_canonical=trimesh.creation.icosphere(subdivisions=4), flag="ok")
     obj = SceneObject(0, 0, front, model="bed", result=result, views=seen_by)
-    _flag_scene_object(obj, seed=0)
+    flag_scene_object(obj, seed=0)
     return obj
 
 
@@ -101,7 +102,7 @@ def test_a_scene_fit_the_cameras_saw_through_is_doubtful(views):
     through, not the bed's coverage bound, judges it); with cameras that saw the wall where the
     ball is fitted, ``doubtful``; without the cameras, the bed's coverage bound makes it
     ``doubtful``."""
-    from jsrte.fit.scene import CLASS_COVERED_MIN, COVERED_MIN, SEEN_THROUGH_MAX
+    from jsrte.fit.scene_checks import CLASS_COVERED_MIN, COVERED_MIN, SEEN_THROUGH_MAX
 
     seen = ball_fitted_as_bed(views).result
     assert COVERED_MIN < seen.quality["surface_coverage"] < CLASS_COVERED_MIN["bed"]
@@ -116,10 +117,10 @@ def test_a_found_object_the_cameras_saw_through_is_no_object(views):
     """The ball fitted as a bed where cameras saw the wall through it (more than
     SEEN_THROUGH_FOUND_MAX of it) is dropped as ``unexplained``; where they saw the ball, or
     where the scan does not say which camera saw each point, it stays found."""
-    from jsrte.fit.scene import SEEN_THROUGH_FOUND_MAX, _drop_seen_through
+    from jsrte.fit.scene_checks import SEEN_THROUGH_FOUND_MAX, drop_seen_through
 
     seen, through, unknown = (ball_fitted_as_bed(v) for v in (views, views_of(radius=0.0), None))
-    _drop_seen_through([seen, through, unknown])
+    drop_seen_through([seen, through, unknown])
     assert through.result.quality["seen_through"] > SEEN_THROUGH_FOUND_MAX
     assert through.status == "unexplained" and through.unexplained_by == "seen through"
     assert "no bed stands there: the cameras saw through" in through.reason

@@ -118,7 +118,8 @@ def test_a_failing_object_is_recorded_and_the_others_go_on(room_scan, monkeypatc
         return original(model, query, replace(settings, iterations=3, extract_resolution=16), **kw)
 
     monkeypatch.setattr(fitting, "fit_with_retry", fit_or_fail)
-    monkeypatch.setattr(scene_module, "ESCAPE_PRESET", "smoke")  # no second fit of a 3-step fit
+    refits = importlib.import_module("jsrte.fit.scene_refits")
+    monkeypatch.setattr(refits, "ESCAPE_PRESET", "smoke")  # no second fit of a 3-step fit
     scene = scene_module.fit_scene(room_scan, model="chair", preset="smoke")
     assert len(calls) == 2 and len(scene.objects) == 2
     failed, ok = scene.objects
@@ -157,7 +158,8 @@ def test_an_object_its_fit_does_not_explain_is_recorded_but_not_found(room_scan,
         return result
 
     monkeypatch.setattr(fitting, "fit_recorded", fit_then_move_the_first)
-    monkeypatch.setattr(importlib.import_module("jsrte.fit.scene"), "ESCAPE_PRESET", "smoke")  # not fitted again
+    refits = importlib.import_module("jsrte.fit.scene_refits")
+    monkeypatch.setattr(refits, "ESCAPE_PRESET", "smoke")  # not fitted again
     monkeypatch.setattr(importlib.import_module("jsrte.fit.scene_checks"), "COVERED_FOUND", 0.0)
     monkeypatch.setattr(importlib.import_module("jsrte.fit.scene_checks"), "SEEN_THROUGH_FOUND_MAX", 1.0)
     out = tmp_path / "scene"
@@ -294,7 +296,8 @@ def test_a_scene_asks_a_whole_about_every_part_some_class_explains(monkeypatch):
     them that are explained, or for itself where none of them is."""
     from importlib import import_module
 
-    from jsrte.fit.scene import PART_EXPLAINED, SCENE_SCREEN, judge_splits
+    from jsrte.fit.scene import SCENE_SCREEN, judge_splits
+    from jsrte.fit.scene_checks import PART_EXPLAINED
 
     screen = import_module("jsrte.fit.screen")  # jsrte.fit is also the function
     # 0 = 1 + 2, 1 = 3 + 4 (the split's tree, most points first)
@@ -339,7 +342,8 @@ def test_a_join_of_clusters_apart_must_explain_every_part(monkeypatch):
     and the chair stand."""
     from importlib import import_module
 
-    from jsrte.fit.scene import PART_EXPLAINED, SCENE_SCREEN, judge_splits
+    from jsrte.fit.scene import SCENE_SCREEN, judge_splits
+    from jsrte.fit.scene_checks import PART_EXPLAINED
 
     ratios = {(0, 1): 0.5, (0, 2): 2.0}
     monkeypatch.setattr(import_module("jsrte.fit.screen"), "explained_ratio",
@@ -621,8 +625,9 @@ def test_a_fit_that_explains_almost_none_of_its_points_is_fitted_again(monkeypat
     import importlib
     from types import SimpleNamespace
 
-    from jsrte.fit.scene import ESCAPE_PRESET, SceneObject, _refit_escaped
+    from jsrte.fit.scene import SceneObject
     from jsrte.fit.scene_checks import EXPLAINED_SHARE
+    from jsrte.fit.scene_refits import ESCAPE_PRESET, refit_escaped
     from jsrte.options import FitOptions
 
     presets = []
@@ -640,16 +645,16 @@ def test_a_fit_that_explains_almost_none_of_its_points_is_fitted_again(monkeypat
     options = FitOptions(preset="sized")
     refit.share = 0.9
     escaped = first(0.05)
-    _refit_escaped(escaped, None, None, options)
+    refit_escaped(escaped, None, None, options)
     assert presets == [(ESCAPE_PRESET, "gauss-newton", 1.2)] and escaped.result.quality["inlier_share"] == 0.9
     assert escaped.result.info["refitted"] == {"preset": ESCAPE_PRESET,
                                                "first": {"preset": "sized", "inlier_share": 0.05, "loss": 0.009}}
     refit.share = 0.01
     worse = first(0.05)
-    _refit_escaped(worse, None, None, options)
+    refit_escaped(worse, None, None, options)
     assert worse.result.quality["inlier_share"] == 0.05 and "refitted" not in worse.result.info
     explained = first(EXPLAINED_SHARE)
-    _refit_escaped(explained, None, None, options)
+    refit_escaped(explained, None, None, options)
     assert len(presets) == 2 and explained.result.quality["inlier_share"] == EXPLAINED_SHARE
 
 
@@ -664,8 +669,9 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
 
     import trimesh
 
-    from jsrte.fit.scene import SceneObject, _fit_another_class
+    from jsrte.fit.scene import SceneObject
     from jsrte.fit.scene_checks import flag_scene_object, mark_unexplained
+    from jsrte.fit.scene_refits import fit_another_class
     from jsrte.geometry.sim3 import Sim3
     from jsrte.model.sizes import ClassSizes
     from jsrte.options import FitOptions
@@ -701,17 +707,17 @@ def test_an_object_of_no_size_of_its_class_is_fitted_with_the_class_whose_sizes_
     scores = {"table": 0.01, "chair": 0.02, "bed": 0.03}
     fit_recorded.holds = True
     bed = table(scores)
-    _fit_another_class(bed, models, FitOptions(preset="fast-scales"))
+    fit_another_class(bed, models, FitOptions(preset="fast-scales"))
     assert fitted == ["bed"] and bed.model == "bed" and bed.status == "ok" and bed.reason == ""
     assert bed.result.info["class"] == {"chosen": "bed", "chosen_by": "size", "scores": scores,
                                              "first_class": "table", "first_radius_m": 2.0}
     fit_recorded.holds = False  # the bed's surface three times too large: its points cover little of it
     stays = table(scores)
-    _fit_another_class(stays, models, FitOptions(preset="fast-scales"))
+    fit_another_class(stays, models, FitOptions(preset="fast-scales"))
     assert fitted == ["bed", "bed"] and stays.model == "table" and stays.status == "unexplained"
     assert "no table of its size" in stays.reason
     untried = table({"table": 0.01, "chair": 0.02, "bed": 0.2})
-    _fit_another_class(untried, models, FitOptions(preset="fast-scales"))
+    fit_another_class(untried, models, FitOptions(preset="fast-scales"))
     assert len(fitted) == 2 and untried.model == "table" and untried.status == "unexplained"
 
 
@@ -930,7 +936,8 @@ def test_a_table_whose_top_was_not_seen_is_fitted_in_full_with_the_close_classes
     import torch
     import trimesh
 
-    from jsrte.fit.scene import IN_FULL_RATIO, SCENE_SCREEN, SceneObject, _fit_other_classes_in_full
+    from jsrte.fit.scene import SCENE_SCREEN, SceneObject
+    from jsrte.fit.scene_refits import IN_FULL_RATIO, fit_other_classes_in_full
     from jsrte.geometry.sim3 import Sim3
     from jsrte.options import FitOptions
 
@@ -964,7 +971,7 @@ def test_a_table_whose_top_was_not_seen_is_fitted_in_full_with_the_close_classes
                            status="unexplained", unexplained_by="top", reason="no table seen")
 
     sofa = unseen_table(0.54)
-    _fit_other_classes_in_full(sofa, models, FitOptions(preset="fast-scales"), SCENE_SCREEN)
+    fit_other_classes_in_full(sofa, models, FitOptions(preset="fast-scales"), SCENE_SCREEN)
     assert fitted == ["bed", "sofa"] and sofa.model == "sofa" and sofa.status == "ok" and sofa.reason == ""
     record = sofa.result.info["class"]
     assert record["chosen"] == "sofa" and record["chosen_by"] == "top" and record["first_class"] == "table"
@@ -972,14 +979,14 @@ def test_a_table_whose_top_was_not_seen_is_fitted_in_full_with_the_close_classes
     assert set(compared) == {"table", "sofa", "bed"} and compared["sofa"] < 0.005 < compared["bed"] < compared["table"]
     assert compared["sofa"] <= IN_FULL_RATIO * compared["table"]
     stays = unseen_table(0.5)
-    _fit_other_classes_in_full(stays, models, FitOptions(preset="fast-scales"), SCENE_SCREEN)
+    fit_other_classes_in_full(stays, models, FitOptions(preset="fast-scales"), SCENE_SCREEN)
     assert len(fitted) == 4 and stays.model == "table" and stays.status == "unexplained"
     assert stays.reason == "no table seen" and stays.result.transform.s == 0.5
     assert stays.result.info["class"]["chosen"] == "table" and set(stays.result.info["class"]["in_full_scores"]) == {
         "table", "sofa", "bed"}
     radius["sofa"] = 0.509  # 0.9 cm off the points where the table is 1.2 cm off: better, not far better
     better = unseen_table(0.512)
-    _fit_other_classes_in_full(better, models, FitOptions(preset="fast-scales"), SCENE_SCREEN)
+    fit_other_classes_in_full(better, models, FitOptions(preset="fast-scales"), SCENE_SCREEN)
     compared = better.result.info["class"]["in_full_scores"]
     assert IN_FULL_RATIO * compared["table"] < compared["sofa"] < compared["table"]
     assert better.model == "table" and better.status == "unexplained" and len(fitted) == 6
@@ -1058,7 +1065,8 @@ def test_a_table_whose_top_was_not_seen_and_no_other_class_explains_is_searched_
 
     import trimesh
 
-    from jsrte.fit.scene import ESCAPE_PRESET, SCENE_SCREEN, SEARCH_AGAIN_DTYPE, SceneObject, _check_objects
+    from jsrte.fit.scene import SCENE_SCREEN, SceneObject, _check_objects
+    from jsrte.fit.scene_refits import ESCAPE_PRESET, SEARCH_AGAIN_DTYPE
     from jsrte.geometry.sim3 import Sim3
     from jsrte.options import FitOptions
 
@@ -1244,14 +1252,9 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
 
     import trimesh
 
-    from jsrte.fit.scene import (
-        ESCAPE_PRESET,
-        SEEN_THROUGH_REFIT,
-        SceneObject,
-        _refit_seen_through,
-        _seen_through_in_part,
-    )
+    from jsrte.fit.scene import SceneObject
     from jsrte.fit.scene_checks import flag_scene_object
+    from jsrte.fit.scene_refits import ESCAPE_PRESET, SEEN_THROUGH_REFIT, refit_seen_through, seen_through_in_part
     from jsrte.fit.screen import Choice
     from jsrte.geometry.sim3 import Sim3
     from jsrte.options import FitOptions
@@ -1291,9 +1294,9 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     options = FitOptions(preset="fast-scales")
     off = found_beside_its_points(0.1)
     first_through = off.result.quality["seen_through"]
-    assert first_through > 3 * SEEN_THROUGH_REFIT and _seen_through_in_part([off], options) == [off]
+    assert first_through > 3 * SEEN_THROUGH_REFIT and seen_through_in_part([off], options) == [off]
     fit_recorded.offset = 0.0
-    _refit_seen_through(off, models, options)
+    refit_seen_through(off, models, options)
     assert refits == [ESCAPE_PRESET] and off.status == "ok" and off.result.transform.t[0] == 0.0
     assert off.result.quality["seen_through"] < 0.01
     assert off.result.flag == "ok" and off.result.info["refitted"]["first"]["flag"] == "doubtful"  # no code bound
@@ -1302,7 +1305,7 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     assert off.result.info["refitted"]["moved_radii"] == pytest.approx(0.2, abs=0.01)  # 0.1 m of a 0.5 m radius
 
     far = found_beside_its_points(0.3)  # its refit, on its points, lies 0.6 radii away: something else
-    _refit_seen_through(far, models, options)
+    refit_seen_through(far, models, options)
     assert len(refits) == 2 and far.result.transform.t[0] == 0.3 and "refitted" not in far.result.info
     turned_down = far.result.info["refit_turned_down"]  # the refit it did not keep, and why
     assert turned_down["moved_radii"] == pytest.approx(0.6, abs=0.01) and turned_down["seen_through"] < 0.01
@@ -1310,15 +1313,15 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
 
     fit_recorded.offset = 0.3
     stays = found_beside_its_points()
-    _refit_seen_through(stays, models, options)
+    refit_seen_through(stays, models, options)
     assert len(refits) == 3 and stays.result.transform.t[0] == 0.3 and "refitted" not in stays.result.info
     why = stays.result.info["refit_turned_down"]["why"]  # as far off its points: too few of them on it too
     assert [w.split(":")[0].split(" on ")[0] for w in why] == ["not found", "seen through"] and "cover" in why[0]
     assert "refit_turned_down" not in off.result.info
 
     near = found_beside_its_points(0.0)
-    assert near.result.quality["seen_through"] <= SEEN_THROUGH_REFIT and _seen_through_in_part([near], options) == []
-    assert _seen_through_in_part([found_beside_its_points()], FitOptions(preset=ESCAPE_PRESET)) == []
+    assert near.result.quality["seen_through"] <= SEEN_THROUGH_REFIT and seen_through_in_part([near], options) == []
+    assert seen_through_in_part([found_beside_its_points()], FitOptions(preset=ESCAPE_PRESET)) == []
     escaped = found_beside_its_points()  # already fitted again by the escape preset: a refit would repeat it
     escaped.result.info["preset"] = ESCAPE_PRESET
-    assert _seen_through_in_part([escaped, far], options) == [far]
+    assert seen_through_in_part([escaped, far], options) == [far]

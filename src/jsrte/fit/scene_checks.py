@@ -21,10 +21,18 @@ if TYPE_CHECKING:
     from jsrte.result import FitResult
 
 
+PART_EXPLAINED = 0.05
+"""A part of a split whose best screen score is at most this is explained well by some class
+(on the tuning rooms: 0.005-0.04 on parts that are most of one object; 0.07-0.1 on a wall's
+remnant or a small, barely seen chair): its whole must explain its points too
+(``jsrte.fit.scene.judge_splits``). A part no class explains well is no evidence of an object of
+its own."""
+
+
 EXPLAINED_SHARE = 0.2
 """A fit that lies on fewer than this share of its points (the quality block's ``inlier_share``:
 within 0.02 of its scale) explains nothing (a fit gone empty, or an object of no shipped class):
-it is fitted again (``jsrte.fit.scene._refit_escaped``), and if it stays so, no model explains the
+it is fitted again (``jsrte.fit.scene_refits.refit_escaped``), and if it stays so, no model explains the
 candidate."""
 
 

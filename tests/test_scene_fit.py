@@ -405,6 +405,27 @@ def test_a_preset_that_holds_each_class_to_its_sizes_holds_the_quick_fits_too(ro
 
 
 @pytest.mark.slow
+def test_a_scene_flags_its_loose_fits_after_every_other_flag(room_scan, short_fits, monkeypatch):
+    """Every fit the scene's other rules leave ``ok`` (here all of them) is doubtful where its
+    points lie farther from it on average than LOOSE_SDF_REL_MAX of its radius: with the bound at
+    0 every fit is, with no bound none; what is found stays the same."""
+    import importlib
+
+    from jsrte.fit import scene as scene_module
+
+    short_fits("iterations")
+    checks = importlib.import_module("jsrte.fit.scene_checks")
+    for module in (scene_module, importlib.import_module("jsrte.fit.scene_refits")):
+        monkeypatch.setattr(module, "flag_scene_object", lambda obj, seed, **kw: setattr(obj.result, "flag", "ok"))
+    flags = {}
+    for bound in (float("inf"), 0.0):
+        monkeypatch.setattr(checks, "LOOSE_SDF_REL_MAX", bound)
+        scene = scene_module.fit_scene(room_scan, model="chair", preset="smoke")
+        flags[bound] = [(o.status, o.result.flag) for o in scene.objects if o.result is not None]
+    assert flags[0.0] and {flag for _, flag in flags[float("inf")]} == {"ok"}
+    assert flags[0.0] == [(status, "doubtful") for status, _ in flags[float("inf")]]
+
+@pytest.mark.slow
 def test_a_scene_keeps_its_doubtful_fits_unless_asked_to_fit_them_again_in_float32(room_scan, short_fits):
     """A scene's full fits run without the float32 retry (``SCENE_FLOAT32_RETRY``) though its
     preset has it; ``float32_retry=True`` asks for it; a single fit keeps the preset's."""

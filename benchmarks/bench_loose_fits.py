@@ -17,31 +17,14 @@ then the fits the shipped bound flags that the rows had ``ok`` (room, class, F@5
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 from pathlib import Path
+
+from replay_bounds import read_hits
 
 from jsrte.fit.scene_checks import LOOSE_SDF_REL_MAX
 
 BAD_BELOW, GOOD_FROM = 0.7, 0.85
-
-
-def read_hits(paths: list[Path]) -> list[dict]:
-    """The found furniture of every objects.csv in ``paths``: each row's room, class, ``fscore``,
-    whether it was flagged ``doubtful``, its ``distance`` and ``inliers`` (None where not recorded)."""
-    def number(text: str | None) -> float | None:
-        return float(text) if text else None
-
-    hits = []
-    for path in paths:
-        with open(path, newline="") as f:
-            for row in csv.DictReader(f):
-                if row["outcome"] == "hit" and row["fscore"]:
-                    hits.append({"room": row["room"], "class": row["found_class"], "fscore": float(row["fscore"]),
-                                 "doubtful": row["flag"] == "doubtful",
-                                 "distance": number(row.get("quality_mean_abs_sdf_rel")),
-                                 "inliers": number(row.get("quality_inlier_share"))})
-    return hits
 
 
 def loose(hit: dict, distance_max: float, inliers_min: float = 0.0) -> bool:
@@ -68,7 +51,7 @@ def main() -> None:
                         help="bounds on the mean distance over the radius (inf: none)")
     parser.add_argument("--inliers", default="0,0.7,0.75,0.8", help="inlier-share bounds (0: none)")
     args = parser.parse_args()
-    hits = read_hits(args.objects)
+    hits = read_hits(args.objects, {"distance": "quality_mean_abs_sdf_rel", "inliers": "quality_inlier_share"})
     print(f"shipped bound: mean distance {LOOSE_SDF_REL_MAX} of the radius, no inlier-share bound")
     print("| distance above | inlier share below | bad fits caught | good fits flagged |")
     print("|---|---|---|---|")

@@ -15,32 +15,12 @@ and how many are flagged, the good ones (F@5% >= 0.85) and how many are flagged.
 
 from __future__ import annotations
 
-import csv
-from pathlib import Path
-
-from replay_bounds import rows_and_bounds
+from replay_bounds import read_hits, rows_and_bounds
 
 from jsrte.fit.scene_checks import UNSURE_CLASS_MARGIN, UNSURE_COVERED_MIN
 
 DEFAULT_BOUNDS = (0.35, 0.37, 0.39, 0.41, 0.42, 0.43, 0.44, 0.45, 0.47)
 BAD_BELOW, GOOD_FROM = 0.7, 0.85
-
-
-def read_hits(paths: list[Path]) -> list[dict]:
-    """The found furniture of every objects.csv in ``paths``: each row's ``fscore``, whether it
-    was flagged ``doubtful``, its class ``margin`` and its ``coverage`` (None where not recorded)."""
-    def number(text: str | None) -> float | None:
-        return float(text) if text else None
-
-    hits = []
-    for path in paths:
-        with open(path, newline="") as f:
-            for row in csv.DictReader(f):
-                if row["outcome"] == "hit":
-                    hits.append({"fscore": float(row["fscore"]), "doubtful": row["flag"] == "doubtful",
-                                 "margin": number(row.get("class_margin")),
-                                 "coverage": number(row.get("quality_surface_coverage"))})
-    return hits
 
 
 def flagged(hit: dict, bound: float) -> bool:
@@ -59,7 +39,7 @@ def replay(hits: list[dict], bound: float) -> dict[str, int]:
 
 def main() -> None:
     paths, bounds, _ = rows_and_bounds(__doc__, DEFAULT_BOUNDS)
-    hits = read_hits(paths)
+    hits = read_hits(paths, {"margin": "class_margin", "coverage": "quality_surface_coverage"})
     print(f"shipped bound: {UNSURE_COVERED_MIN} (class margin below {UNSURE_CLASS_MARGIN})")
     print("| bound | bad fits caught | good fits flagged |")
     print("|---|---|---|")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import csv
 from pathlib import Path
 
 Alternative = tuple[str, tuple[float, ...], str]
@@ -27,3 +28,18 @@ def rows_and_bounds(doc: str, default_bounds: tuple[float, ...],
     defaults = given[1] if given is not None else default_bounds
     bounds = [float(b) for b in args.bounds.split(",")] if args.bounds else list(defaults)
     return args.objects, bounds, None if given is None else given[0]
+
+
+def read_hits(paths: list[Path], columns: dict[str, str]) -> list[dict]:
+    """The found furniture (hits) of every objects.csv in ``paths``: each row's ``room``,
+    ``class`` (found), ``fscore`` and whether it was flagged ``doubtful``, and each of ``columns``
+    (key: CSV column) as a number (None where not recorded)."""
+    hits = []
+    for path in paths:
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                if row["outcome"] == "hit" and row["fscore"]:
+                    hits.append({"room": row["room"], "class": row["found_class"], "fscore": float(row["fscore"]),
+                                 "doubtful": row["flag"] == "doubtful"}
+                                | {key: float(row[c]) if row.get(c) else None for key, c in columns.items()})
+    return hits

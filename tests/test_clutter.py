@@ -617,9 +617,9 @@ def test_without_a_class_two_pieces_apart_stay_candidates_beside_their_join(gap,
 ])
 def test_a_top_floating_at_table_height_is_a_candidate_with_floating_tops(underside, floating_top, candidate):
     """A slab 4 cm thick, 1 m across, its underside ``underside`` above the floor, nothing seen
-    under it, a chair 2 m away: a whole scene's segmentation with ``floating_top_m`` 0.6 takes
-    the slab for a candidate where it floats 0.6 m or more above the floor (as tall as its top),
-    and rejects it as too flat lower down."""
+    under it, a chair 2 m away: a whole scene's segmentation (``floating_top_m`` 0.6) takes the
+    slab for a candidate that floats where it lies 0.6 m or more above the floor (as tall as its
+    top), and rejects it as too flat lower down."""
     from jsrte.fit.scene import SCENE_SEGMENT
 
     top = trimesh.creation.box([1.0, 0.04, 0.8],
@@ -628,12 +628,14 @@ def test_a_top_floating_at_table_height_is_a_candidate_with_floating_tops(unders
     chair.apply_translation([2.0, 0.0, 0.0])
     slab_points = _surface_points(top, int(6000 * top.area), 0)
     points = np.concatenate([slab_points, _surface_points(chair, int(6000 * chair.area), 1)])
-    settings = replace(SCENE_SEGMENT, floating_top_m=0.6) if floating_top else SegmentSettings()
+    assert SCENE_SEGMENT.floating_top_m == 0.6
+    settings = SCENE_SEGMENT if floating_top else SegmentSettings()
     result = segment_objects(points, points[:, 1], np.array([0.0, 1.0, 0.0]), rng=np.random.default_rng(0),
                              settings=settings)
     (slab,) = [c for c in result.candidates
                if len(c.index) > 0.98 * len(slab_points) and c.index.max() < len(slab_points)]
     assert (slab.rejected == "") == candidate
+    assert slab.floats == (floating_top and underside >= 0.6)
     if not candidate:
         assert slab.rejected.startswith("too flat")
 

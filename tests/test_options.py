@@ -38,6 +38,25 @@ def test_settings_apply_line_of_sight_and_free_axis_to_the_preset():
     assert fast.fit.float32_retry and not get_preset("paper").fit.float32_retry
     assert not FitOptions(float32_retry=False).settings().fit.float32_retry
     assert FitOptions(preset="paper", float32_retry=True).settings().fit.float32_retry
+    assert fast.fit.floor_contact == 0.0 and get_preset("fast-scales-floor").fit.floor_contact_classes == ("table",)
+    held = FitOptions(floor_contact=0.3).settings().fit
+    assert held.floor_contact == 0.3 and held.floor_contact_classes is None  # every class
+    assert FitOptions(preset="fast-gn", floor_contact=0.0).settings().fit.floor_contact == 0.0
+
+
+def test_a_floor_contact_is_a_weight_of_0_or_more_for_adam_fits_only(run_cli, tmp_path):
+    for bad, message in [({"floor_contact": -0.1}, "floor_contact must be a finite number 0 or more, got -0.1"),
+                         ({"floor_contact": float("nan")}, "finite number"),
+                         ({"floor_contact": 0.3, "preset": "fast-gn"},
+                          "floor_contact holds Adam's fits only; preset fast-gn fits by gauss-newton")]:
+        with pytest.raises(JsrteError, match=message):
+            FitOptions(**bad)
+    for flags, message in [(["--floor-contact", "-1"], "--floor-contact must be a finite number 0 or more"),
+                           (["--floor-contact", "0.3", "--preset", "fast-gn"],
+                            "--floor-contact holds Adam's fits only; preset fast-gn fits by gauss-newton")]:
+        code, _, err = run_cli(["fit", str(tmp_path / "scan.ply"), "--out", str(tmp_path / "out"), *flags])
+        assert code == 2 and message in err and err.count("\n") == 1
+        assert not (tmp_path / "out").exists()
 
 
 def test_the_dtype_flag_is_checked_and_recorded(run_cli, tmp_path):
@@ -73,7 +92,8 @@ def test_every_fit_option_is_a_flag_of_fit_and_fit_many_and_the_query_ones_of_pr
     commands = typer.main.get_command(app).commands  # type: ignore[attr-defined]
     flag = {"viewpoints": "viewpoint"}  # repeatable: one flag per viewpoint
     every = {flag.get(f.name, f.name) for f in fields(FitOptions)}
-    fit_time = {"hypotheses", "free_axis", "device", "dtype", "float32_retry"}  # prepare leaves them to jsrte fit
+    # prepare leaves them to jsrte fit
+    fit_time = {"hypotheses", "free_axis", "device", "dtype", "float32_retry", "floor_contact"}
     query_only = every - fit_time
     for name, wanted in (("fit", every), ("fit-many", every), ("prepare", query_only)):
         params = {p.name for p in commands[name].params}

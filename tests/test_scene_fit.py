@@ -1346,3 +1346,33 @@ def test_a_found_object_the_cameras_saw_through_is_fitted_again_and_kept_where_s
     escaped = found_beside_its_points()  # already fitted again by the escape preset: a refit would repeat it
     escaped.result.info["preset"] = ESCAPE_PRESET
     assert seen_through_in_part([escaped, far], options) == [far]
+
+
+@pytest.mark.parametrize(("floats", "preset", "own", "held"), [
+    (True, "fast-scales", None, 0.3),  # a table's top floating, seen without its legs
+    (False, "fast-scales", None, None),  # anything standing on the floor is fitted freely
+    (True, "fast-gn", None, None),  # Levenberg-Marquardt has no floor contact
+    (True, "fast-scales", 0.0, 0.0),  # the user's own weight stands
+])
+def test_a_candidate_that_floats_is_fitted_held_to_the_floor(monkeypatch, floats, preset, own, held):
+    """The full fit of a candidate whose underside floats (``Candidate.floats``) is held to the floor
+    by FLOATING_TOP_FLOOR_CONTACT (where the preset fits by Adam and the options give no weight)."""
+    import importlib
+    from types import SimpleNamespace
+
+    from jsrte.fit.scene import FLOATING_TOP_FLOOR_CONTACT, SceneObject, _fit_object
+    from jsrte.options import FitOptions
+
+    weights = []
+
+    def fit(model, query, options, *, class_choice=None, progress=False, settings=None):
+        weights.append((options.floor_contact, options.settings().fit.floor_contact))
+        return SimpleNamespace(quality={"inlier_share": 0.9}, info={}, loss=0.002)
+
+    monkeypatch.setattr(importlib.import_module("jsrte.fit"), "fit_recorded", fit)
+    cands = SimpleNamespace(segmentation=SimpleNamespace(candidates=[SimpleNamespace(floats=floats)]),
+                            query=lambda k, rng: SimpleNamespace(info={"segmentation": {}}))
+    obj = SceneObject(0, 0, np.zeros((10, 3)))
+    _fit_object(obj, cands, {"table": object()}, FitOptions(preset=preset, floor_contact=own), screen=None)
+    assert FLOATING_TOP_FLOOR_CONTACT == 0.3 and obj.status == "ok" and obj.model == "table"
+    assert weights == [(held, held or 0.0)]

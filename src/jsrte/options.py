@@ -46,6 +46,9 @@ class FitOptions:
     float32_retry : fit a bfloat16 fit flagged doubtful again in float32 and keep the one with
         more inliers (None: the preset's, ``FitSettings.float32_retry``; a whole scene's default
         is False)
+    floor_contact : hold the fitted shape to the floor under the object with this weight
+        (``FitSettings.floor_contact``, whatever the class; None: the preset's): a table seen by
+        its top alone otherwise ends with its legs in the air. Adam's fits only (not ``fast-gn``)
     """
 
     preset: str = DEFAULT_PRESET
@@ -60,6 +63,7 @@ class FitOptions:
     units_check: bool = True
     dtype: str | None = None
     float32_retry: bool | None = None
+    floor_contact: float | None = None
 
     def __post_init__(self) -> None:
         """Check every option once: vectors (any sequence or array) become finite float tuples,
@@ -81,11 +85,18 @@ class FitOptions:
             object.__setattr__(self, "device", str(self.device))  # a torch.device is welcome too
         if self.preset not in PRESETS:
             raise JsrteError(f"unknown preset {self.preset!r}; known: {', '.join(PRESETS)}")
+        if self.floor_contact is not None and not (isinstance(self.floor_contact, numbers.Real)
+                                                   and math.isfinite(self.floor_contact) and self.floor_contact >= 0):
+            raise JsrteError(f"floor_contact must be a finite number 0 or more, got {self.floor_contact!r}")
+        if self.floor_contact and PRESETS[self.preset].fit.solver != "adam":
+            raise JsrteError(f"floor_contact holds Adam's fits only; preset {self.preset} fits by "
+                             f"{PRESETS[self.preset].fit.solver}")
         if self.dtype is not None and self.dtype not in DECODER_DTYPES:
             raise JsrteError(f"unknown dtype {self.dtype!r}; known: {', '.join(DECODER_DTYPES)}")
 
     def settings(self) -> Preset:
-        """The preset with these options applied (line of sight, free axis, dtype, float32 retry)."""
+        """The preset with these options applied (line of sight, free axis, dtype, float32 retry,
+        floor contact)."""
         from jsrte.presets import get_preset, with_line_of_sight
 
         preset = get_preset(self.preset)
@@ -96,6 +107,9 @@ class FitOptions:
             preset = replace(preset, fit=replace(preset.fit, decoder_dtype=self.dtype))
         if self.float32_retry is not None:
             preset = replace(preset, fit=replace(preset.fit, float32_retry=bool(self.float32_retry)))
+        if self.floor_contact is not None:
+            preset = replace(preset, fit=replace(preset.fit, floor_contact=float(self.floor_contact),
+                                                 floor_contact_classes=None))
         return preset
 
     def record(self) -> dict[str, object]:

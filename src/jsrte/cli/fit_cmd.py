@@ -27,7 +27,8 @@ def fit_command(
     line_of_sight: bool = opt.LINE_OF_SIGHT, free_axis: bool = opt.FREE_AXIS, at: str = opt.AT,
     hypotheses: int = opt.HYPOTHESES, seed: int = opt.SEED, device: str = opt.DEVICE,
     units_check: bool = opt.UNITS_CHECK, dtype: str = opt.DTYPE,
-    float32_retry: bool = opt.FLOAT32_RETRY, leftovers: bool = opt.LEFTOVERS,
+    float32_retry: bool = opt.FLOAT32_RETRY, floor_contact: float = opt.FLOOR_CONTACT,
+    leftovers: bool = opt.LEFTOVERS,
     threads: int = typer.Option(0, help="CPU threads (0: all cores); with --scene, objects fitted at once."),
     overwrite: bool = typer.Option(False, help="Replace results already in --out."),
     progress: bool = typer.Option(True, help="Show a progress bar."),
@@ -41,7 +42,8 @@ def fit_command(
     preset = preset or default_preset(scene=scene, class_unknown=names_several_models(model))
     options = opt.fit_options(preset=preset, up=up, viewpoint=viewpoint, line_of_sight=line_of_sight,
                               free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, device=device,
-                              units_check=units_check, dtype=dtype, float32_retry=float32_retry)
+                              units_check=units_check, dtype=dtype, float32_retry=float32_retry,
+                              floor_contact=floor_contact)
     check_threads(threads)
     if not scan.exists():
         raise JsrteError("no such file", scan)

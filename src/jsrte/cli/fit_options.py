@@ -43,6 +43,11 @@ FLOAT32_RETRY = typer.Option(
     None, "--float32-retry/--no-float32-retry",
     help="Fit a bfloat16 fit flagged doubtful again in float32 and keep the one with more inliers (default: the "
          "preset's: on in every preset but paper and smoke; off with --scene; docs/presets.md).")
+FLOOR_CONTACT = typer.Option(
+    None, "--floor-contact",
+    help="Hold the fitted shape to the floor under the object with this weight, whatever its class: a table "
+         "seen by its top alone otherwise ends with its legs in the air (default: the preset's; 0.3 for tables "
+         "in fast-scales-floor; Adam presets only, not fast-gn; docs/presets.md).")
 LEFTOVERS = typer.Option(
     False, "--leftovers/--no-leftovers",
     help="Whole scenes (fit --scene): also fit, as objects of their own, the points the found objects' fits "
@@ -59,7 +64,8 @@ UNITS_CHECK = typer.Option(
 def fit_options(*, preset: str = DEFAULT_PRESET, up: str | None = None, viewpoint: list[str] | None = None,
                 line_of_sight: bool | None = None, free_axis: bool = False, at: str | None = None,
                 hypotheses: int | None = None, seed: int = 0, device: str = "cpu",
-                units_check: bool = True, dtype: str | None = None, float32_retry: bool | None = None) -> FitOptions:
+                units_check: bool = True, dtype: str | None = None, float32_retry: bool | None = None,
+                floor_contact: float | None = None) -> FitOptions:
     """The flags' values (as typed) as checked :class:`FitOptions`; a one-line error naming the
     flag for a bad value."""
     from jsrte.cli.common import resolve_device
@@ -68,12 +74,27 @@ def fit_options(*, preset: str = DEFAULT_PRESET, up: str | None = None, viewpoin
     check_dtype(dtype)
     if hypotheses is not None and hypotheses < 1:
         raise JsrteError(f"--hypotheses must be positive, got {hypotheses}")
+    check_floor_contact(floor_contact, preset)
     points = parse_points(viewpoint)
     return FitOptions(preset=preset, up=parse_vector(up), viewpoints=None if points is None else points,
                       line_of_sight=line_of_sight, free_axis=free_axis,
                       at=None if at is None else three_numbers(at, "--at"), hypotheses=hypotheses, seed=seed,
                       device=str(resolve_device(device)), units_check=units_check, dtype=dtype,
-                      float32_retry=float32_retry)
+                      float32_retry=float32_retry, floor_contact=floor_contact)
+
+
+def check_floor_contact(weight: float | None, preset: str) -> None:
+    """A one-line error for a ``--floor-contact`` below 0 or not finite, or given to a preset
+    that does not fit by Adam (None: the preset's)."""
+    import math
+
+    if weight is None:
+        return
+    if not (math.isfinite(weight) and weight >= 0):
+        raise JsrteError(f"--floor-contact must be a finite number 0 or more, got {weight}")
+    solver = PRESETS[preset].fit.solver
+    if weight and solver != "adam":
+        raise JsrteError(f"--floor-contact holds Adam's fits only; preset {preset} fits by {solver}")
 
 
 def check_preset(preset: str) -> str:

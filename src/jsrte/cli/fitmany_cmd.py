@@ -24,7 +24,7 @@ def fit_many_command(
     free_axis: bool = opt.FREE_AXIS, at: str = opt.AT, hypotheses: int = opt.HYPOTHESES,
     seed: int = typer.Option(0, help="Random seed (the same for every scan, as jsrte fit)."),
     device: str = opt.DEVICE, units_check: bool = opt.UNITS_CHECK, dtype: str = opt.DTYPE,
-    float32_retry: bool = opt.FLOAT32_RETRY,
+    float32_retry: bool = opt.FLOAT32_RETRY, floor_contact: float = opt.FLOOR_CONTACT,
     workers: int = typer.Option(0, help="Parallel fits on this machine (0: all cores); with --ray local, "
                                         "the CPUs of that Ray instance."),
     ray: str = typer.Option(None, "--ray", help="Run on the Ray cluster at this address (auto, HOST:6379, "
@@ -46,7 +46,8 @@ def fit_many_command(
     preset = preset or default_preset(class_unknown=names_several_models(model))
     options = opt.fit_options(preset=preset, up=up, viewpoint=viewpoint, line_of_sight=line_of_sight,
                               free_axis=free_axis, at=at, hypotheses=hypotheses, seed=seed, device=device,
-                              units_check=units_check, dtype=dtype, float32_retry=float32_retry)
+                              units_check=units_check, dtype=dtype, float32_retry=float32_retry,
+                              floor_contact=floor_contact)
     check_threads(workers, "--workers")
     if retries < 0:
         raise JsrteError(f"--retries must be 0 or more, got {retries}")

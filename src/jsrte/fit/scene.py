@@ -231,7 +231,7 @@ class SceneResult:
 
 
 SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True,
-                                join_apart_m=0.4)
+                                join_apart_m=0.4, floating_top_m=0.6)
 """The segmentation of a scene whose class is unknown: without a class shape to say where to cut,
 every neck of normalized cut 0.008 or less is cut (the whole staying a candidate beside its
 parts), and fits of the whole and of its parts decide (:func:`judge_splits`). On the tuning
@@ -243,7 +243,17 @@ tables side by side, a chair beside a bed) stay the parts of their join
 (``join_keeps_parts_without_class``), judged as a split's; so do two up to 40 cm apart
 (``join_apart_m``): a bed whose middle the scan did not see. Most joins that far hold two
 objects: the judgement keeps their parts, and a whole judged one object whose fit is dropped
-gives way to its parts (:func:`_fit_parts_of_dropped`)."""
+gives way to its parts (:func:`_fit_parts_of_dropped`). A slab whose underside floats 0.6 m or
+more above the floor (``floating_top_m``) is as tall as its top, not too flat: a table's top seen
+without the legs or pedestal it hides from cameras above; its full fits are held to the floor
+(:data:`FLOATING_TOP_FLOOR_CONTACT`)."""
+
+FLOATING_TOP_FLOOR_CONTACT = 0.3
+"""The floor contact (``FitOptions.floor_contact``) of the full fits of a candidate that floats
+(``Candidate.floats``): nothing in the points of a top seen alone says how far down its shape
+reaches, and a top fitted freely ends with its legs in the air or beside it. The weight of the
+``fast-scales-floor`` preset (docs/presets.md, "Tables held to the floor"); other candidates are
+not held (on the reported rooms, holding every table found two fewer)."""
 
 
 SCENE_FIT_VEIL: VeilSettings | None = None
@@ -539,6 +549,7 @@ def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptio
     from jsrte.fit.classes import fit_contenders
     from jsrte.fit.screen import contending
 
+    options = _held_to_floor(options, cands.segmentation.candidates[obj.candidate].floats)
     try:
         choice = obj.choice
         if isinstance(choice, str):
@@ -562,6 +573,15 @@ def _fit_object(obj: SceneObject, cands: object, models: dict, options: FitOptio
         refit_escaped(obj, query, models[obj.model], options)
     except JsrteError as exc:
         obj.status, obj.reason, obj.result = "failed", str(exc), None
+
+
+def _held_to_floor(options: FitOptions, floats: bool) -> FitOptions:
+    """``options`` for the full fits of a candidate: held to the floor by
+    :data:`FLOATING_TOP_FLOOR_CONTACT` where it ``floats``, the preset fits by Adam and ``options``
+    name no floor contact of their own."""
+    if not floats or options.floor_contact is not None or options.settings().fit.solver != "adam":
+        return options
+    return options.changed(floor_contact=FLOATING_TOP_FLOOR_CONTACT)
 
 
 def _check_objects(objects: list[SceneObject], models: dict, options: FitOptions, workers: int,

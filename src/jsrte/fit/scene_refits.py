@@ -170,7 +170,7 @@ def _escape_fit(model: object, query: SdfQuery, options: FitOptions, first: FitR
     in the arithmetic ``dtype`` (None: ``options``')."""
     from jsrte.fit import fit_recorded
 
-    escape = options.changed(preset=ESCAPE_PRESET, dtype=dtype or options.dtype)
+    escape = options.changed(preset=ESCAPE_PRESET, dtype=dtype or options.dtype, floor_contact=None)
     settings = escape.settings()
     settings = replace(settings, fit=replace(settings.fit, size_margin=options.settings().fit.size_margin))
     return fit_recorded(model, query, escape, class_choice=first.info.get("class"), settings=settings)

@@ -198,6 +198,8 @@ class Candidate:
         (``jsrte.fit.screen.cut_necks``)
     box : the evidence that it is a box (``jsrte.scans.boxes.BoxEvidence``), where it was taken
         out of a cluster as one (None: not taken out)
+    floats : its underside lies ``SegmentSettings.floating_top_m`` or more above the floor (a
+        table's top seen without the legs or pedestal under it)
     """
 
     index: np.ndarray
@@ -208,6 +210,7 @@ class Candidate:
     parts: list[int] = field(default_factory=list)
     neck: list[Candidate] = field(default_factory=list)
     box: Any = None
+    floats: bool = False
 
 
 @dataclass
@@ -1023,7 +1026,7 @@ def _candidate(index: np.ndarray, points: np.ndarray, heights: np.ndarray, up: n
     else:
         rejected = ""
     score = class_score(p, h, shape) if len(index) else None
-    return Candidate(index=index, score=score, rejected=rejected, summary=summary)
+    return Candidate(index=index, score=score, rejected=rejected, summary=summary, floats=floats)
 
 
 def leftover_candidates(index: np.ndarray, points: np.ndarray, heights: np.ndarray, up: np.ndarray,

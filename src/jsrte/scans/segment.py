@@ -167,8 +167,9 @@ class SegmentSettings:
     """A cluster whose underside (2nd percentile of its heights) lies this far or more above the
     floor is as tall as its top (98th percentile) for the flatness test: a table's top seen
     without the pedestal or legs under it, which it hides from cameras above, stands on
-    something. None: every cluster is as tall as its own thickness (whole scenes too: the fits
-    of a top alone did not find its table; docs/clutter.md, Limits)."""
+    something; the candidate ``floats``. None: every cluster is as tall as its own thickness
+    (whole scenes: 0.6, ``jsrte.fit.scene.SCENE_SEGMENT``, which holds the fits of a candidate
+    that floats to the floor)."""
     min_width_m: float = 0.08
     """Narrower than this across (largest horizontal side): too thin."""
     min_depth_m: float = 0.013

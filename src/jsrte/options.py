@@ -85,12 +85,8 @@ class FitOptions:
             object.__setattr__(self, "device", str(self.device))  # a torch.device is welcome too
         if self.preset not in PRESETS:
             raise JsrteError(f"unknown preset {self.preset!r}; known: {', '.join(PRESETS)}")
-        if self.floor_contact is not None and not (isinstance(self.floor_contact, numbers.Real)
-                                                   and math.isfinite(self.floor_contact) and self.floor_contact >= 0):
-            raise JsrteError(f"floor_contact must be a finite number 0 or more, got {self.floor_contact!r}")
-        if self.floor_contact and PRESETS[self.preset].fit.solver != "adam":
-            raise JsrteError(f"floor_contact holds Adam's fits only; preset {self.preset} fits by "
-                             f"{PRESETS[self.preset].fit.solver}")
+        if why := floor_contact_error(self.floor_contact, self.preset):
+            raise JsrteError(f"floor_contact {why}")
         if self.dtype is not None and self.dtype not in DECODER_DTYPES:
             raise JsrteError(f"unknown dtype {self.dtype!r}; known: {', '.join(DECODER_DTYPES)}")
 
@@ -125,6 +121,19 @@ class FitOptions:
             raise JsrteError(f"unknown fit option {', '.join(unknown)}; known: "
                              f"{', '.join(f.name for f in fields(self))}")
         return replace(self, **changes)
+
+
+def floor_contact_error(weight: object, preset: str) -> str | None:
+    """Why ``weight`` cannot be the floor-contact weight of a fit by the known ``preset`` (None:
+    it can, or it is None, the preset's own)."""
+    if weight is None:
+        return None
+    if not (isinstance(weight, numbers.Real) and math.isfinite(weight) and weight >= 0):
+        return f"must be a finite number 0 or more, got {weight!r}"
+    solver = PRESETS[preset].fit.solver
+    if weight and solver != "adam":
+        return f"holds Adam's fits only; preset {preset} fits by {solver}"
+    return None
 
 
 def _rows(value: object) -> Iterable[object]:

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from jsrte.errors import JsrteError
-from jsrte.options import FitOptions
+from jsrte.options import FitOptions, floor_contact_error
 from jsrte.presets import CLASS_PRESET, DECODER_DTYPES, DEFAULT_PRESET, PRESETS, SCENE_PRESET
 
 if TYPE_CHECKING:  # numpy is imported by the functions that run, never for --help
@@ -74,27 +74,14 @@ def fit_options(*, preset: str = DEFAULT_PRESET, up: str | None = None, viewpoin
     check_dtype(dtype)
     if hypotheses is not None and hypotheses < 1:
         raise JsrteError(f"--hypotheses must be positive, got {hypotheses}")
-    check_floor_contact(floor_contact, preset)
+    if why := floor_contact_error(floor_contact, preset):
+        raise JsrteError(f"--floor-contact {why}")
     points = parse_points(viewpoint)
     return FitOptions(preset=preset, up=parse_vector(up), viewpoints=None if points is None else points,
                       line_of_sight=line_of_sight, free_axis=free_axis,
                       at=None if at is None else three_numbers(at, "--at"), hypotheses=hypotheses, seed=seed,
                       device=str(resolve_device(device)), units_check=units_check, dtype=dtype,
                       float32_retry=float32_retry, floor_contact=floor_contact)
-
-
-def check_floor_contact(weight: float | None, preset: str) -> None:
-    """A one-line error for a ``--floor-contact`` below 0 or not finite, or given to a preset
-    that does not fit by Adam (None: the preset's)."""
-    import math
-
-    if weight is None:
-        return
-    if not (math.isfinite(weight) and weight >= 0):
-        raise JsrteError(f"--floor-contact must be a finite number 0 or more, got {weight}")
-    solver = PRESETS[preset].fit.solver
-    if weight and solver != "adam":
-        raise JsrteError(f"--floor-contact holds Adam's fits only; preset {preset} fits by {solver}")
 
 
 def check_preset(preset: str) -> str:

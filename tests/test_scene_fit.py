@@ -1140,8 +1140,10 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
     """A whole (candidate 0: parts 1, 2 and a rejected scrap 3) judged one object, whose fit the
     cameras saw through, gives way to its parts: 1 is fitted and found; 2 is seen through in
     turn and gives way to its own parts 4 and 5; the scrap is not fitted. Each new object is
-    numbered after the others and says whose part it is. A whole dropped as a second fit, or
-    whose points cover little of its fit, keeps its parts out."""
+    numbered after the others and says whose part it is. A whole whose points cover little of
+    its fit (one shape laid over two neighbours) gives way to its parts too, but a part dropped
+    so is a scrap and keeps its own parts out; a whole dropped as a second fit keeps its parts
+    out."""
     from types import SimpleNamespace
 
     from jsrte.fit import scene as scene_module
@@ -1163,7 +1165,15 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
         obj.model, obj.result = "m", SimpleNamespace(quality={"seen_through": seen_through[obj.candidate]})
 
     monkeypatch.setattr(scene_module, "_fit_object", fit_object)
-    monkeypatch.setattr(scene_module, "_check_objects", lambda objects, *args: [])
+    covering_little = set()
+
+    def check_objects(objects, *args):
+        for obj in objects:
+            if obj.candidate in covering_little:
+                obj.status, obj.unexplained_by = "unexplained", "coverage"
+        return []
+
+    monkeypatch.setattr(scene_module, "_check_objects", check_objects)
     monkeypatch.setattr(scene_module, "drop_second_fits", lambda *args, **kwargs: None)
 
     def whole(dropped_by: str) -> SceneObject:
@@ -1178,8 +1188,12 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
     assert [o.status for o in parts] == ["ok", "unexplained", "ok", "ok"] and seen_through[2] > SEEN_THROUGH_FOUND_MAX
     assert replace(parts[0], result=None).to_json()["part_of"] == 7
     fitted.clear()
-    for dropped_by in ("second fit", "coverage"):
-        assert _fit_parts_of_dropped([whole(dropped_by)], cands, {}, {}, {}, options, None, workers=1) == []
+    seen_through[2], covering_little = 0.0, {2}
+    parts = _fit_parts_of_dropped([whole("coverage")], cands, {}, {}, {}, options, None, workers=1)
+    assert fitted == [1, 2] and [o.status for o in parts] == ["ok", "unexplained"]
+    assert [o.part_of for o in parts] == [7, 7]
+    fitted.clear()
+    assert _fit_parts_of_dropped([whole("second fit")], cands, {}, {}, {}, options, None, workers=1) == []
     assert fitted == []
 
 

@@ -700,3 +700,37 @@ def test_without_a_class_two_tables_side_by_side_stay_candidates_of_their_own(ke
                     for p in union.parts)
     assert union.summary["joined"] and [s for s, _ in shares] == [0.0, 1.0]
     assert shares[0][1] > 0.98 * (len(points) - len(clouds[0])) and shares[1][1] > 0.98 * len(clouds[0])
+
+
+@pytest.mark.parametrize("scrap_points, piece_share, is_piece", [(150, 0.9, True), (150, None, False),
+                                                                  (900, 0.9, False)])
+def test_a_part_too_big_for_a_scrap_far_from_it_is_its_largest_piece(scrap_points, piece_share, is_piece):
+    """A split's part holding a chair-sized blob and a scrap of its neighbour 3.5 m away is too
+    big to be an object; a whole scene (``piece_share`` 0.9) takes its largest piece for it where
+    that piece holds 0.9 of its points, leaving the scrap out and counting it. A scrap holding
+    more, a part judged whole (``piece_share`` None), and the split's whole stay too big."""
+    from jsrte.fit.scene import SCENE_SEGMENT
+    from jsrte.scans.segment import _family_candidates, _Node
+
+    rng = np.random.default_rng(0)
+
+    def blob(centre: list[float], size: list[float], n: int) -> np.ndarray:
+        return np.asarray(centre) + rng.uniform(-0.5, 0.5, size=(n, 3)) * np.asarray(size)
+
+    chair = blob([0.0, 0.45, 0.0], [0.5, 0.9, 0.5], 3000)
+    scrap = blob([3.5, 1.5, 0.0], [0.2, 0.2, 0.2], scrap_points)
+    other = blob([-1.0, 0.45, 0.0], [0.5, 0.9, 0.5], 3000)
+    points = np.concatenate([chair, scrap, other])
+    part = np.arange(len(chair) + scrap_points)
+    nodes = [_Node(np.arange(len(points)), None), _Node(part, 0), _Node(np.arange(len(part), len(points)), 0)]
+    settings = replace(SCENE_SEGMENT, piece_share=piece_share)
+    assert SCENE_SEGMENT.piece_share == 0.9
+    whole, first, second = _family_candidates(nodes, points, points[:, 1], np.array([0.0, 1.0, 0.0]), None,
+                                              settings, eps=0.1)
+    assert whole.rejected.startswith("too big") and second.rejected == ""
+    assert first.parent == 0 and whole.parts == [1, 2]
+    if is_piece:
+        assert first.rejected == "" and np.array_equal(first.index, np.arange(len(chair)))
+        assert first.summary["scrap_points"] == scrap_points
+    else:
+        assert first.rejected.startswith("too big") and len(first.index) == len(part)

@@ -231,7 +231,7 @@ class SceneResult:
 
 
 SCENE_SEGMENT = SegmentSettings(cut_max_without_class=0.008, join_keeps_parts_without_class=True,
-                                join_apart_m=0.4, floating_top_m=0.6)
+                                join_apart_m=0.4, floating_top_m=0.6, piece_share=0.9)
 """The segmentation of a scene whose class is unknown: without a class shape to say where to cut,
 every neck of normalized cut 0.008 or less is cut (the whole staying a candidate beside its
 parts), and fits of the whole and of its parts decide (:func:`judge_splits`). On the tuning
@@ -246,7 +246,8 @@ objects: the judgement keeps their parts, and a whole judged one object whose fi
 gives way to its parts (:func:`_fit_parts_of_dropped`). A slab whose underside floats 0.6 m or
 more above the floor (``floating_top_m``) is as tall as its top, not too flat: a table's top seen
 without the legs or pedestal it hides from cameras above; its full fits are held to the floor
-(:data:`FLOATING_TOP_FLOOR_CONTACT`)."""
+(:data:`FLOATING_TOP_FLOOR_CONTACT`). A split's part too big only for a scrap of a neighbour the
+cut gave it far away is its largest connected piece (``piece_share``)."""
 
 FLOATING_TOP_FLOOR_CONTACT = 0.3
 """The floor contact (``FitOptions.floor_contact``) of the full fits of a candidate that floats

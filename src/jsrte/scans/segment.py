@@ -170,6 +170,13 @@ class SegmentSettings:
     something; the candidate ``floats``. None: every cluster is as tall as its own thickness
     (whole scenes: 0.6, ``jsrte.fit.scene.SCENE_SEGMENT``, which holds the fits of a candidate
     that floats to the floor)."""
+    piece_share: float | None = None
+    """A part of a split (with no parts of its own) too big to be an object whose largest
+    connected piece (DBSCAN at the scene's radius) holds this share of its points or more, and is
+    not too big, is that piece: the cut gave it a scrap of a neighbour far from it (a chair with
+    a hundred points of a bed's head 3 m away). The scrap's points are left out of every
+    candidate (``summary["scrap_points"]``). None: a part is judged whole (whole scenes: 0.9,
+    ``jsrte.fit.scene.SCENE_SEGMENT``)."""
     min_width_m: float = 0.08
     """Narrower than this across (largest horizontal side): too thin."""
     min_depth_m: float = 0.013
@@ -317,7 +324,7 @@ def segment_objects(
     nodes: list[_Node] = []
     for c in clusters:
         _family_tree(c, points, heights, up, shape, settings, eps, nodes, sight=sight)
-    candidates = _family_candidates(nodes, points, heights, up, shape, settings)
+    candidates = _family_candidates(nodes, points, heights, up, shape, settings, eps)
     removed["small_clusters"] = int(sum(len(c.index) for c in candidates if c.rejected.startswith("too few")))
     chosen, how = _choose(candidates, points, at, settings.size_weight)
     if chosen is None:
@@ -625,13 +632,18 @@ def _connected_sides(points: np.ndarray, side: np.ndarray, eps: float) -> np.nda
 
 
 def _family_candidates(nodes: list[_Node], points: np.ndarray, heights: np.ndarray, up: np.ndarray,
-                       shape: ClassShape | None, s: SegmentSettings) -> list[Candidate]:
+                       shape: ClassShape | None, s: SegmentSettings, eps: float = 0.0) -> list[Candidate]:
     """The candidates of the split trees' ``nodes``, most points first, with their ``parent``
-    and ``parts`` as positions in that order."""
+    and ``parts`` as positions in that order; a part too big to be an object may be its largest
+    piece (``SegmentSettings.piece_share``, pieces at the DBSCAN radius ``eps``)."""
     parent = [n.parent for n in nodes]
+    has_parts = {n.parent for n in nodes}
     order = sorted(range(len(nodes)), key=lambda k: -len(nodes[k].index))
     position = {k: p for p, k in enumerate(order)}
     candidates = [_candidate(nodes[k].index, points, heights, up, shape, s) for k in order]
+    for p, k in enumerate(order):
+        if parent[k] is not None and k not in has_parts and candidates[p].rejected.startswith("too big"):
+            candidates[p] = _largest_piece(candidates[p], points, heights, up, shape, s, eps)
     for k in order:
         candidates[position[k]].neck = [_candidate(part, points, heights, up, shape, s) for part in nodes[k].neck]
         if nodes[k].cut_value is not None:
@@ -997,6 +1009,26 @@ def _merge_matches(bigger: np.ndarray, union: np.ndarray, points: np.ndarray, he
         return True
     together = class_score(points[union], heights[union], shape)
     return together is not None and together <= alone + s.join_slack
+
+
+def _largest_piece(candidate: Candidate, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                   shape: ClassShape | None, s: SegmentSettings, eps: float) -> Candidate:
+    """``candidate`` (rejected as too big) as its largest connected piece at the DBSCAN radius
+    ``eps`` where that piece holds ``s.piece_share`` of its points and is no longer rejected;
+    else ``candidate`` as it is."""
+    if s.piece_share is None or eps <= 0:
+        return candidate
+    labels = _dbscan(points[candidate.index], eps, s.cluster_min_points)
+    if not (labels >= 0).any():
+        return candidate
+    largest = labels == np.bincount(labels[labels >= 0]).argmax()
+    if largest.sum() < s.piece_share * len(labels):
+        return candidate
+    piece = _candidate(candidate.index[largest], points, heights, up, shape, s)
+    if piece.rejected:
+        return candidate
+    piece.summary["scrap_points"] = int(len(labels) - largest.sum())
+    return piece
 
 
 def _box_gap(a: np.ndarray, b: np.ndarray) -> float:

@@ -1142,13 +1142,15 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
     turn and gives way to its own parts 4 and 5; the scrap is not fitted. Each new object is
     numbered after the others and says whose part it is. A whole whose points cover little of
     its fit (one shape laid over two neighbours) gives way to its parts too, but a part dropped
-    so is a scrap and keeps its own parts out; a whole dropped as a second fit keeps its parts
-    out."""
+    so is a scrap and keeps its own parts out; so does a whole whose fitted table's top they
+    cover little of (a sofa taken for a table), its parts fitted without the table's class where
+    another class has a score. A whole dropped as a second fit keeps its parts out."""
     from types import SimpleNamespace
 
     from jsrte.fit import scene as scene_module
     from jsrte.fit.scene import SceneObject, _fit_parts_of_dropped
     from jsrte.fit.scene_checks import SEEN_THROUGH_FOUND_MAX
+    from jsrte.fit.screen import Choice
     from jsrte.options import FitOptions
 
     candidates = [_Candidate(60, parts=[1, 2, 3]), _Candidate(20, parent=0), _Candidate(30, parts=[4, 5], parent=0),
@@ -1160,8 +1162,11 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
     seen_through = {1: 0.0, 2: 0.6, 4: 0.05, 5: 0.1}
     fitted = []
 
+    classes = {}
+
     def fit_object(obj, *args):
         fitted.append(obj.candidate)
+        classes[obj.candidate] = None if obj.choice is None else obj.choice.classes
         obj.model, obj.result = "m", SimpleNamespace(quality={"seen_through": seen_through[obj.candidate]})
 
     monkeypatch.setattr(scene_module, "_fit_object", fit_object)
@@ -1193,6 +1198,13 @@ def test_the_parts_of_a_whole_whose_fit_is_dropped_are_fitted_as_objects(monkeyp
     assert fitted == [1, 2] and [o.status for o in parts] == ["ok", "unexplained"]
     assert [o.part_of for o in parts] == [7, 7]
     fitted.clear()
+    screened = {1: Choice(None, None, [], {"m": 0.01, "sofa": 0.02}), 2: Choice(None, None, [], {"m": 0.01})}
+    for dropped_by, part_classes in (("top", {"m": None, "sofa": 0.02}), ("coverage", {"m": 0.01, "sofa": 0.02})):
+        classes.clear()
+        _fit_parts_of_dropped([whole(dropped_by)], cands, screened, {}, {}, options, None, workers=1)
+        assert fitted == [1, 2] and classes == {1: part_classes, 2: {"m": 0.01}}
+        fitted.clear()
+    assert screened[1].classes == {"m": 0.01, "sofa": 0.02}
     assert _fit_parts_of_dropped([whole("second fit")], cands, {}, {}, {}, options, None, workers=1) == []
     assert fitted == []
 
@@ -1221,8 +1233,11 @@ def test_a_whole_judged_two_objects_is_fitted_whole_when_a_part_is_not_found(mon
     whole_fit: dict = {}
     fitted = []
 
+    classes = {}
+
     def fit_object(obj, *args):
         fitted.append(obj.candidate)
+        classes[obj.candidate] = None if obj.choice is None else obj.choice.classes
         obj.model = "m"
         obj.result = SimpleNamespace(flag=whole_fit["flag"], quality={"seen_through": 0.0},
                                      lies_on=whole_fit["lies_on"])

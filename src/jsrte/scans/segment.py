@@ -174,9 +174,9 @@ class SegmentSettings:
     """A part of a split (with no parts of its own) too big to be an object whose largest
     connected piece (DBSCAN at the scene's radius) holds this share of its points or more, and is
     not too big, is that piece: the cut gave it a scrap of a neighbour far from it (a chair with
-    a hundred points of a bed's head 3 m away). The scrap's points are left out of every
-    candidate (``summary["scrap_points"]``). None: a part is judged whole (whole scenes: 0.9,
-    ``jsrte.fit.scene.SCENE_SEGMENT``)."""
+    a hundred points of a bed's head 3 m away). The scrap's points stay in the split's whole
+    only (the part's ``summary["scrap_points"]`` counts them). None: a part is judged whole
+    (whole scenes: 0.9, ``jsrte.fit.scene.SCENE_SEGMENT``)."""
     min_width_m: float = 0.08
     """Narrower than this across (largest horizontal side): too thin."""
     min_depth_m: float = 0.013

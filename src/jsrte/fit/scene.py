@@ -697,8 +697,8 @@ def _without_unseen_tops(parts: list[tuple[int, int]], dropped: list[SceneObject
         choice, name = screened.get(k), unseen.get(whole)
         if name is None or not isinstance(choice, Choice):
             continue
-        others = [score for other, score in choice.classes.items() if other != name and score is not None]
-        if others and choice.classes.get(name) is not None:
+        others_scored = any(score is not None for other, score in choice.classes.items() if other != name)
+        if others_scored and choice.classes.get(name) is not None:
             changed[k] = replace(choice, classes=choice.classes | {name: None})
     return changed
 

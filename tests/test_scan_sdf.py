@@ -10,7 +10,7 @@ from jsrte.presets import FAST, LINE_OF_SIGHT_SAMPLES, PAPER, ScanSdf, with_line
 from jsrte.scans.io import ScanCloud
 from jsrte.scans.preprocess import prepare_scan
 from jsrte.scans.scanner import ScannerSettings, scan_mesh
-from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples
+from jsrte.sdf.from_scan import ray_freespace_samples, scan_sdf_samples, visible_pairs, zbuffer_visible
 
 RADIUS = 0.4
 SMALL = ScanSdf(n_freespace=4000)
@@ -156,3 +156,27 @@ def test_ray_freespace_off_or_without_viewpoints_gives_nothing():
     for settings, views in cases:
         xyz, sdf = ray_freespace_samples(points, points, views, rng=np.random.default_rng(0), settings=settings)
         assert xyz.shape == (0, 3) and sdf.shape == (0,)
+
+
+def test_the_point_zbuffer_hides_the_points_behind_a_wall_from_one_side_only():
+    """A 1 m square wall at z = 0 and a smaller square 0.5 m behind it (z = -0.5), seen from
+    z = +3 and from z = -3: from the front the square behind is hidden and the wall seen; from
+    the back the square is seen and the wall only around the square's shadow."""
+    def square(half: float, step: float, z: float) -> np.ndarray:
+        u = np.arange(-half, half + 1e-9, step)
+        x, y = np.meshgrid(u, u)
+        return np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+
+    wall, behind = square(0.5, 0.01, 0.0), square(0.2, 0.01, -0.5)
+    n = len(wall)
+    points = np.concatenate([wall, behind])
+    front, back = np.array([0.0, 0.0, 3.0]), np.array([0.0, 0.0, -3.0])
+    seen_front = zbuffer_visible(points, front)
+    assert seen_front[:n].mean() > 0.99 and seen_front[n:].mean() < 0.01
+    seen_back = zbuffer_visible(points, back)
+    assert seen_back[n:].mean() > 0.99
+    reach = np.abs(wall[:, :2]).max(axis=1)  # the square's shadow on the wall reaches 0.24 m
+    assert seen_back[:n][reach < 0.2].mean() < 0.01 and seen_back[:n][reach > 0.3].mean() > 0.98
+    pairs = visible_pairs(points, np.stack([front, back]))  # (point, viewpoint) for each seen point
+    assert np.array_equal(pairs[pairs[:, 1] == 0, 0], np.flatnonzero(seen_front))
+    assert np.array_equal(pairs[pairs[:, 1] == 1, 0], np.flatnonzero(seen_back))

@@ -121,24 +121,32 @@ def ray_freespace_samples(
 def visible_pairs(points: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
     """(p, 2) int: (point index, viewpoint index) for every point a viewpoint sees."""
     pairs = [np.zeros((0, 2), dtype=np.int64)]
+    spacing = median_spacing(points) if len(points) >= 4 else None
     for k, viewpoint in enumerate(viewpoints):
-        visible = np.flatnonzero(zbuffer_visible(points, viewpoint))
+        visible = np.flatnonzero(zbuffer_visible(points, viewpoint, spacing=spacing))
         pairs.append(np.column_stack([visible, np.full(len(visible), k)]))
     return np.concatenate(pairs)
 
 
+def median_spacing(points: np.ndarray) -> float:
+    """The median distance (scan units) from each of ``points`` (n, 3), n >= 2, to its nearest other."""
+    from pykdtree.kdtree import KDTree
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    return float(np.median(KDTree(points).query(points, k=2)[0][:, 1]))
+
+
 def zbuffer_visible(points: np.ndarray, viewpoint: np.ndarray, *, cell_spacings: float = 2.0,
-                    depth_tolerance_m: float = 0.02) -> np.ndarray:
+                    depth_tolerance_m: float = 0.02, spacing: float | None = None) -> np.ndarray:
     """Mask (n,) of the ``points`` (n, 3) that ``viewpoint`` (3,) sees: a point z-buffer.
 
     The points are projected through a pinhole at the viewpoint looking at their centre, onto
     square cells ``cell_spacings`` times the points' median spacing wide (at their median
     distance); a point is visible when it is within ``depth_tolerance_m`` of the nearest point
     of its cell. Unlike hidden point removal (Katz et al. 2007), which judges points seen
-    through narrow gaps (the floor between a chair's legs) hidden, this keeps them.
+    through narrow gaps (the floor between a chair's legs) hidden, this keeps them. ``spacing``:
+    the points' median spacing where the caller has it (:func:`median_spacing`).
     """
-    from pykdtree.kdtree import KDTree
-
     points = np.ascontiguousarray(points, dtype=np.float64)
     if len(points) < 4:
         return np.ones(len(points), dtype=bool)
@@ -150,12 +158,13 @@ def zbuffer_visible(points: np.ndarray, viewpoint: np.ndarray, *, cell_spacings:
     across = np.cross(forward, side)
     depth = offset @ forward
     ahead = depth > 1e-6
-    spacing = float(np.median(KDTree(points).query(points, k=2)[0][:, 1]))
+    spacing = median_spacing(points) if spacing is None else spacing
     cell = cell_spacings * spacing / float(np.median(depth[ahead]))
     safe = np.where(ahead, depth, 1.0)
     ix = np.floor((offset @ side) / safe / cell).astype(np.int64)
     iy = np.floor((offset @ across) / safe / cell).astype(np.int64)
-    _, key = np.unique(np.column_stack([ix, iy]), axis=0, return_inverse=True)
+    ix, iy = ix - ix.min(), iy - iy.min()
+    _, key = np.unique(ix * (iy.max() + 1) + iy, return_inverse=True)  # one number per cell
     key = key.reshape(-1)
     nearest = np.full(key.max() + 1, np.inf)
     np.minimum.at(nearest, key[ahead], depth[ahead])

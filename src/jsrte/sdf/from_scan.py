@@ -120,20 +120,14 @@ def ray_freespace_samples(
 
 def visible_pairs(points: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
     """(p, 2) int: (point index, viewpoint index) for every point a viewpoint sees."""
+    from jsrte.scans.preprocess import median_spacing
+
     pairs = [np.zeros((0, 2), dtype=np.int64)]
     spacing = median_spacing(points) if len(points) >= 4 else None
     for k, viewpoint in enumerate(viewpoints):
         visible = np.flatnonzero(zbuffer_visible(points, viewpoint, spacing=spacing))
         pairs.append(np.column_stack([visible, np.full(len(visible), k)]))
     return np.concatenate(pairs)
-
-
-def median_spacing(points: np.ndarray) -> float:
-    """The median distance (scan units) from each of ``points`` (n, 3), n >= 2, to its nearest other."""
-    from pykdtree.kdtree import KDTree
-
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    return float(np.median(KDTree(points).query(points, k=2)[0][:, 1]))
 
 
 def zbuffer_visible(points: np.ndarray, viewpoint: np.ndarray, *, cell_spacings: float = 2.0,
@@ -145,8 +139,11 @@ def zbuffer_visible(points: np.ndarray, viewpoint: np.ndarray, *, cell_spacings:
     distance); a point is visible when it is within ``depth_tolerance_m`` of the nearest point
     of its cell. Unlike hidden point removal (Katz et al. 2007), which judges points seen
     through narrow gaps (the floor between a chair's legs) hidden, this keeps them. ``spacing``:
-    the points' median spacing where the caller has it (:func:`median_spacing`).
+    the points' median spacing where the caller has it
+    (:func:`jsrte.scans.preprocess.median_spacing`).
     """
+    from jsrte.scans.preprocess import median_spacing
+
     points = np.ascontiguousarray(points, dtype=np.float64)
     if len(points) < 4:
         return np.ones(len(points), dtype=bool)

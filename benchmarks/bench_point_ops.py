@@ -38,8 +38,8 @@ def main() -> None:
     import open3d as o3d
 
     from jsrte.geometry import point_ops
+    from jsrte.geometry.point_ops import median_spacing
     from jsrte.scans.ply import read_ply_cloud
-    from jsrte.scans.preprocess import median_spacing
 
     cloud_points, _ = read_ply_cloud(args.scan)
     rng = np.random.default_rng(0)

@@ -51,7 +51,7 @@ def _as_mask(n: int, index: list[int]) -> np.ndarray:
 
 
 def _spacing(points: np.ndarray) -> float:
-    from jsrte.scans.preprocess import median_spacing
+    from jsrte.geometry.point_ops import median_spacing
 
     return median_spacing(points)
 

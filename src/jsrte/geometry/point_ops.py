@@ -71,6 +71,17 @@ def _distance2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]) + d[..., 2] * d[..., 2]
 
 
+def median_spacing(points: np.ndarray) -> float:
+    """Median distance from a point (n, 3) to its nearest other point (0 if fewer than 2)."""
+    from pykdtree.kdtree import KDTree
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    if len(points) < 2:
+        return 0.0
+    distance, _ = KDTree(points).query(points, k=2)
+    return float(np.median(distance[:, 1]))
+
+
 def visible_points(points: np.ndarray, viewpoint: np.ndarray, radius: float) -> np.ndarray:
     """Hidden point removal (Katz et al. 2007): mask (n,) bool of the ``points`` (n, 3) visible
     from ``viewpoint`` (3,).

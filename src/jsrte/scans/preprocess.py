@@ -16,6 +16,7 @@ import numpy as np
 
 from jsrte.errors import JsrteError
 from jsrte.geometry.planes import ransac_plane, refit_plane
+from jsrte.geometry.point_ops import median_spacing
 from jsrte.scans.io import ScanCloud
 from jsrte.scans.segment import ClassShape, Segmentation, SegmentSettings, segment_objects
 from jsrte.scans.veil import VeilSettings, scan_mixed_pixels
@@ -401,17 +402,6 @@ def synthetic_viewpoints(
                                         np.cos(elevation) * np.sin(azimuth)]))
     rotation = np.eye(3) if up is None else rotation_between(np.array([0.0, 1.0, 0.0]), up)
     return centre + settings.orient_distance_factor * radius * np.array(directions) @ rotation.T
-
-
-def median_spacing(points: np.ndarray) -> float:
-    """Median distance from a point (n, 3) to its nearest other point (0 if fewer than 2)."""
-    from pykdtree.kdtree import KDTree
-
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    if len(points) < 2:
-        return 0.0
-    distance, _ = KDTree(points).query(points, k=2)
-    return float(np.median(distance[:, 1]))
 
 
 def check_units(

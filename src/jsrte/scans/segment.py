@@ -419,7 +419,7 @@ def _is_wall(inliers: np.ndarray, distance: np.ndarray, normal: np.ndarray, up: 
 
 
 def _spacing(points: np.ndarray) -> float:
-    from jsrte.scans.preprocess import median_spacing
+    from jsrte.geometry.point_ops import median_spacing
 
     return median_spacing(points)
 

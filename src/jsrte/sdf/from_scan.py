@@ -120,7 +120,7 @@ def ray_freespace_samples(
 
 def visible_pairs(points: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
     """(p, 2) int: (point index, viewpoint index) for every point a viewpoint sees."""
-    from jsrte.scans.preprocess import median_spacing
+    from jsrte.geometry.point_ops import median_spacing
 
     pairs = [np.zeros((0, 2), dtype=np.int64)]
     spacing = median_spacing(points) if len(points) >= 4 else None
@@ -140,9 +140,9 @@ def zbuffer_visible(points: np.ndarray, viewpoint: np.ndarray, *, cell_spacings:
     of its cell. Unlike hidden point removal (Katz et al. 2007), which judges points seen
     through narrow gaps (the floor between a chair's legs) hidden, this keeps them. ``spacing``:
     the points' median spacing where the caller has it
-    (:func:`jsrte.scans.preprocess.median_spacing`).
+    (:func:`jsrte.geometry.point_ops.median_spacing`).
     """
-    from jsrte.scans.preprocess import median_spacing
+    from jsrte.geometry.point_ops import median_spacing
 
     points = np.ascontiguousarray(points, dtype=np.float64)
     if len(points) < 4:

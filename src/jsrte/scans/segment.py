@@ -42,6 +42,7 @@ import numpy as np
 
 from jsrte.errors import JsrteError
 from jsrte.geometry.planes import ransac_plane, refit_plane
+from jsrte.geometry.point_ops import median_spacing
 
 PROFILE_BINS = 8
 """Bins of a height profile (share of the points at each fraction of the object's height)."""
@@ -308,7 +309,7 @@ def segment_objects(
     if len(kept) < settings.min_points:
         raise JsrteError(f"no object left after segmentation: {len(walls)} wall(s) removed "
                          f"({removed['walls']} points), {len(kept)} points left", path)
-    eps = settings.cluster_eps_factor * _spacing(points[kept])
+    eps = settings.cluster_eps_factor * median_spacing(points[kept])
     labels = _dbscan(points[kept], eps, settings.cluster_min_points)
     removed["dbscan_noise"] = int((labels < 0).sum())
     clusters = [kept[labels == k] for k in range(labels.max(initial=-1) + 1)]
@@ -416,12 +417,6 @@ def _is_wall(inliers: np.ndarray, distance: np.ndarray, normal: np.ndarray, up: 
         return True
     share = {1: float((off > 0).mean()), -1: float((off < 0).mean())}
     return max(share[side] for side in room_sides) >= s.wall_one_side
-
-
-def _spacing(points: np.ndarray) -> float:
-    from jsrte.geometry.point_ops import median_spacing
-
-    return median_spacing(points)
 
 
 def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
@@ -1068,7 +1063,7 @@ def leftover_candidates(index: np.ndarray, points: np.ndarray, heights: np.ndarr
     (3,)) clustered again as :func:`segment_objects` clusters (DBSCAN at the radius it uses for
     ``points``): each cluster of at least ``shred_points`` that may be an object, as a candidate
     (no class score). For the points a scene's fits left unexplained (``jsrte.fit.scene``)."""
-    eps = settings.cluster_eps_factor * _spacing(points)
+    eps = settings.cluster_eps_factor * median_spacing(points)
     labels = _dbscan(points[index], eps, settings.cluster_min_points)
     clusters = [index[labels == k] for k in range(labels.max(initial=-1) + 1)]
     described = [_candidate(c, points, heights, up, None, settings) for c in clusters
